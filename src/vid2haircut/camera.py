@@ -1,0 +1,123 @@
+"""Pinhole camera in the OpenCV convention (x right, y down, z forward), metres.
+
+This is the one camera type of the project: the synthesiser writes it, the renderer and the
+front stages read it. ``calibration/camera_params.json`` (see the sequence-format spec) maps to
+one :class:`Camera` per serial.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Camera:
+    """One calibrated camera.
+
+    Attributes:
+        K: (3, 3) float64 intrinsics.
+        world_2_cam: (4, 4) float64 extrinsics, world -> camera (OpenCV).
+        width, height: image size in pixels.
+    """
+
+    K: np.ndarray
+    world_2_cam: np.ndarray
+    width: int
+    height: int
+
+    @property
+    def cam_2_world(self) -> np.ndarray:
+        return np.linalg.inv(self.world_2_cam)
+
+    @property
+    def center(self) -> np.ndarray:
+        """(3,) camera centre in world coordinates."""
+        return self.cam_2_world[:3, 3]
+
+    def to_camera(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) world points -> (..., 3) camera-frame points."""
+        p = np.asarray(points, dtype=np.float64)
+        return p @ self.world_2_cam[:3, :3].T + self.world_2_cam[:3, 3]
+
+    def project(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(..., 3) world points -> ((..., 2) pixel coordinates, (...,) camera depth z).
+
+        Pixel centres are at integer coordinates (OpenCV): pixel (0, 0) covers [-0.5, 0.5]^2.
+        """
+        pc = self.to_camera(points)
+        z = pc[..., 2]
+        zs = np.where(np.abs(z) > 1e-12, z, 1e-12)
+        uv = pc[..., :2] / zs[..., None]
+        uv = uv @ self.K[:2, :2].T + self.K[:2, 2]
+        return uv, z
+
+    def with_pose(self, world_2_cam: np.ndarray) -> "Camera":
+        return Camera(self.K, np.asarray(world_2_cam, dtype=np.float64), self.width, self.height)
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 1.0, 0.0])) -> np.ndarray:
+    """World->camera (4, 4) for an OpenCV camera at ``eye`` looking at ``target`` (world y up)."""
+    eye = np.asarray(eye, dtype=np.float64)
+    fwd = np.asarray(target, dtype=np.float64) - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, up)
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    rot = np.stack([right, down, fwd])  # rows: camera axes in world coordinates
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = -rot @ eye
+    return out
+
+
+def intrinsics_from_fov(width: int, height: int, fov_y_deg: float) -> np.ndarray:
+    """(3, 3) intrinsics with square pixels and the principal point at the image centre."""
+    f = 0.5 * height / np.tan(np.radians(fov_y_deg) / 2.0)
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def load_cameras(path: str | Path) -> dict[str, Camera]:
+    """Read ``calibration/camera_params.json`` -> {serial: Camera}. Errors name the file."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: calibration file not found") from None
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    for key in ("intrinsics", "world_2_cam", "width", "height"):
+        if key not in data:
+            raise ValueError(f"{path}: missing key '{key}'")
+    K = np.asarray(data["intrinsics"], dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"{path}: 'intrinsics' must be 3x3, got shape {K.shape}")
+    cams = {}
+    for serial, m in data["world_2_cam"].items():
+        m = np.asarray(m, dtype=np.float64)
+        if m.shape != (4, 4):
+            raise ValueError(f"{path}: world_2_cam['{serial}'] must be 4x4, got shape {m.shape}")
+        cams[str(serial)] = Camera(K, m, int(data["width"]), int(data["height"]))
+    if not cams:
+        raise ValueError(f"{path}: 'world_2_cam' lists no camera")
+    return cams
+
+
+def save_cameras(path: str | Path, cameras: dict[str, Camera]) -> None:
+    """Write ``camera_params.json`` (all cameras must share intrinsics and size, as in NeRSemble)."""
+    from vid2haircut.io.atomic import write_json
+
+    cams = list(cameras.values())
+    first = cams[0]
+    for c in cams[1:]:
+        if not (np.allclose(c.K, first.K) and c.width == first.width and c.height == first.height):
+            raise ValueError("all cameras written to one camera_params.json must share intrinsics and size")
+    write_json(path, {
+        "intrinsics": first.K.tolist(),
+        "world_2_cam": {s: c.world_2_cam.tolist() for s, c in cameras.items()},
+        "width": first.width,
+        "height": first.height,
+    })

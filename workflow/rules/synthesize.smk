@@ -1,0 +1,31 @@
+# Synthetic head-motion sequences with ground truth (the embedded demo and the benchmarks' data).
+
+
+def synth_record(wildcards):
+    return _synth_sequences()[(wildcards.subject, wildcards.seq)]
+
+
+rule synthesize:
+    output:
+        meta=str(DATASET_ROOT / "{subject}" / "sequences" / "{seq}" / "ground_truth" / "meta.json"),
+    params:
+        root=str(DATASET_ROOT),
+        family=lambda w: synth_record(w)["family"],
+        seed=lambda w: synth_record(w)["seed"],
+        frames=SYNTH.get("n_frames", 48),
+        size=SYNTH.get("size", 512),
+        strands=SYNTH.get("n_strands", 10000),
+        points=SYNTH.get("n_points", 100),
+        noise=SYNTH.get("landmark_noise_px", 1.0),
+        yaw=SYNTH.get("yaw_max_deg", 60),
+        sway=SYNTH.get("sway_max_m", 0.015),
+    log:
+        "logs/synthesize/{subject}/{seq}.log",
+    benchmark:
+        "benchmarks/synthesize/{subject}/{seq}.tsv"
+    threads: 2
+    shell:
+        "{CLI} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        " --family {params.family} --seed {params.seed} --frames {params.frames} --size {params.size}"
+        " --strands {params.strands} --points {params.points} --landmark-noise {params.noise}"
+        " --yaw-max {params.yaw} --sway-max {params.sway} > {log} 2>&1"
