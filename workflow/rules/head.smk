@@ -5,10 +5,11 @@ rule head_export:
     output:
         obj="resources/head/proxy-v1/head.obj",
     params:
+        cli=CLI,
         out_dir=lambda w, output: str(Path(output.obj).parent),
     log:
         "logs/head_export/proxy-v1.log",
     benchmark:
         "benchmarks/head_export/proxy-v1.tsv"
     shell:
-        "{CLI} head export {params.out_dir} > {log} 2>&1"
+        "{params.cli} head export {params.out_dir} > {log} 2>&1"

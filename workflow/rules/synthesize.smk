@@ -1,15 +1,12 @@
 # Synthetic head-motion sequences with ground truth (the embedded demo and the benchmarks' data).
 
 
-def synth_record(wildcards):
-    return _synth_sequences()[(wildcards.subject, wildcards.seq)]
-
-
 rule synthesize:
     output:
         meta=str(DATASET_ROOT / "{subject}" / "sequences" / "{seq}" / "ground_truth" / "meta.json"),
     params:
-        root=str(DATASET_ROOT),
+        cli=CLI,
+        root=lambda w, output: str(Path(output.meta).parents[4]),
         family=lambda w: synth_record(w)["family"],
         seed=lambda w: synth_record(w)["seed"],
         frames=SYNTH.get("n_frames", 48),
@@ -25,7 +22,7 @@ rule synthesize:
         "benchmarks/synthesize/{subject}/{seq}.tsv"
     threads: 2
     shell:
-        "{CLI} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        "{params.cli} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " --family {params.family} --seed {params.seed} --frames {params.frames} --size {params.size}"
         " --strands {params.strands} --points {params.points} --landmark-noise {params.noise}"
         " --yaw-max {params.yaw} --sway-max {params.sway} > {log} 2>&1"
