@@ -220,6 +220,8 @@ class StrandSet:
         """Strands selected by an integer index array, a boolean mask (N,) or a slice."""
         if not isinstance(index, slice):
             index = np.asarray(index)
+            if index.size == 0:
+                index = index.astype(np.int64)
             if index.dtype == bool and index.shape != (self.n_strands,):
                 raise ValueError(f"StrandSet.subset: boolean mask must be ({self.n_strands},), got {index.shape}")
             if index.ndim != 1:

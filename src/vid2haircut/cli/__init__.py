@@ -15,6 +15,8 @@ import sys
 COMMANDS = [
     "head",
     "synthesize",
+    "evaluate",
+    "export",
 ]
 
 

@@ -1,0 +1,39 @@
+"""``vid2haircut keyframes``: pick the keyframes of a sequence (most frontal frame + pose coverage)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_sequence_args(p: argparse.ArgumentParser) -> None:
+    """Arguments naming one sequence (shared by the front-stage commands)."""
+    p.add_argument("--dataset-root", required=True, help="dataset root holding <subject>/sequences/<seq>")
+    p.add_argument("--subject", required=True, help="subject folder name")
+    p.add_argument("--sequence", required=True, help="sequence name")
+    p.add_argument("--serial", default=None, help="camera serial (default: first sorted / as recorded)")
+    p.add_argument("--out", required=True, help="output folder")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser("keyframes", help="select keyframes -> keyframes.json + contact sheet",
+                              description=__doc__)
+    add_sequence_args(p)
+    p.add_argument("--num-keyframes", type=int, default=6, help="number of keyframes M (>= 1)")
+    p.add_argument("--head-model", default="proxy-v1", help="head model name or FLAME .pkl path")
+    p.add_argument("--landmarks", default="auto", choices=["auto", "file", "detect"],
+                   help="landmark source: the sequence's landmark file, MediaPipe detection, or auto")
+    p.add_argument("--blur-ratio", type=float, default=0.35,
+                   help="reject frames sharper than this fraction of the median sharpness")
+    p.add_argument("--max-candidates", type=int, default=300, help="frames scored at most (evenly spaced)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from vid2haircut.front.keyframes import KeyframeConfig
+    from vid2haircut.front.stages import run_keyframes
+
+    run_keyframes(args.dataset_root, args.subject, args.sequence, args.out, serial=args.serial,
+                  head_model=args.head_model,
+                  cfg=KeyframeConfig(num_keyframes=args.num_keyframes, max_candidates=args.max_candidates,
+                                     blur_ratio=args.blur_ratio, landmark_source=args.landmarks))
+    return 0

@@ -1,0 +1,89 @@
+"""``head.npz``: the fitted head of a sequence, and how to resolve a head-model name.
+
+``head.npz`` keys::
+
+    head_model            () str    head model name ("proxy-v1") or FLAME file path
+    shape_names           (3,) str  ("scale", "width", "depth")
+    shape                 (3,) float64 the shape factors (landmarks scaled per axis by
+                                     (scale*width, scale, scale*depth); for "proxy-v1" they are
+                                     get_head()'s arguments of the same names)
+    frames                (M,) int64 keyframe indices (frames without a face are left out)
+    world_from_head       (M, 4, 4) float64 rigid head pose per frame (x_world = R x_head + t)
+    reprojection_error_px (M,) float64 mean landmark reprojection error (inlier landmarks)
+    landmarks_2d          (M, 68, 2) float32 observed landmarks (NaN if unknown)
+    inliers               (M, 68) bool landmarks used by the fit
+    source                () str    "landmarks" (fitted) or "tracking" (tracking/head_tracking.npz)
+    serial                () str    camera serial
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from vid2haircut.front.pose import SHAPE_NAMES, HeadFit
+
+
+def resolve_head(spec: str, shape: np.ndarray | None = None):
+    """Head model from a name ("proxy-v1") or a FLAME model file path; optional shape factors.
+
+    Shape factors are passed on to the built-in proxy; a FLAME head is used at its own shape.
+    """
+    from vid2haircut.head import HEAD_NAMES, get_head
+
+    if spec in HEAD_NAMES:
+        if shape is None:
+            return get_head(spec)
+        s, w, d = (float(v) for v in shape)
+        return get_head(spec, scale=s, width=w, depth=d)
+    p = Path(spec)
+    if p.suffix == ".pkl" or p.is_file():
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: FLAME model file not found")
+        from vid2haircut.head import load_flame
+
+        return load_flame(p).as_head_model()
+    raise ValueError(f"unknown head model {spec!r} (known: {', '.join(HEAD_NAMES)}, or a FLAME .pkl path)")
+
+
+def base_landmarks(spec: str) -> np.ndarray:
+    """(68, 3) float64 landmarks of the head model at shape factors 1 (head frame, metres)."""
+    return np.asarray(resolve_head(spec).landmarks, dtype=np.float64)
+
+
+def save_head_fit(path: str | Path, fit: HeadFit, serial: str, source: str = "landmarks") -> None:
+    """Write ``head.npz`` atomically (keys in the module docstring)."""
+    from vid2haircut.io.atomic import write_npz
+
+    write_npz(path, head_model=np.array(fit.head_model), shape_names=np.array(SHAPE_NAMES),
+              shape=np.asarray(fit.shape, np.float64), frames=np.asarray(fit.frames, np.int64),
+              world_from_head=np.asarray(fit.world_from_head, np.float64),
+              reprojection_error_px=np.asarray(fit.reprojection_error_px, np.float64),
+              landmarks_2d=np.asarray(fit.landmarks_2d, np.float32),
+              inliers=np.asarray(fit.inliers, bool), source=np.array(source), serial=np.array(str(serial)))
+
+
+def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
+    """Read ``head.npz`` -> (HeadFit, {"source", "serial"}); errors name the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: head fit file not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+    except Exception as e:
+        raise ValueError(f"{path}: not a readable .npz file ({type(e).__name__}: {e})") from None
+    need = ("head_model", "shape", "frames", "world_from_head", "reprojection_error_px")
+    missing = [k for k in need if k not in d]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {missing}")
+    m = len(d["frames"])
+    if d["world_from_head"].shape != (m, 4, 4):
+        raise ValueError(f"{path}: world_from_head must be ({m}, 4, 4), got {d['world_from_head'].shape}")
+    fit = HeadFit(head_model=str(d["head_model"]), shape=d["shape"].astype(np.float64),
+                  frames=d["frames"].astype(np.int64), world_from_head=d["world_from_head"].astype(np.float64),
+                  reprojection_error_px=d["reprojection_error_px"].astype(np.float64),
+                  inliers=d.get("inliers", np.ones((m, 68), bool)).astype(bool),
+                  landmarks_2d=d.get("landmarks_2d", np.full((m, 68, 2), np.nan, np.float32)).astype(np.float32))
+    return fit, {"source": str(d.get("source", "landmarks")), "serial": str(d.get("serial", ""))}

@@ -1,0 +1,1 @@
+"""Synthetic data: procedural hairstyles, head/hair motion and sequence synthesis (benchmark side)."""

@@ -1,0 +1,89 @@
+"""Keeping procedural hair out of the head: root lifting and SDF collision projection."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .hair_sdf import HeadSDF
+
+__all__ = ["lift_roots", "project_out", "follow_the_leader", "resolve_collisions"]
+
+
+def lift_roots(sdf: HeadSDF, points: np.ndarray, normals: np.ndarray, clearance: float = 2e-4,
+               iters: int = 4) -> np.ndarray:
+    """Move surface points (N,3) along their normals (N,3) until the signed distance is >= ``clearance``
+    (``sdf`` the head's signed distance; the SDF grid's interpolation error can put exact surface points slightly inside).
+
+    Returns:
+        (N,3) float64 points, each within a fraction of a millimetre of the input.
+    """
+    x = np.asarray(points, np.float64).copy()
+    nrm = np.asarray(normals, np.float64)
+    for _ in range(iters):
+        d = sdf(x)
+        need = d < clearance
+        if not need.any():
+            break
+        x[need] += (clearance - d[need] + 1e-5)[:, None] * nrm[need]
+    return x
+
+
+def project_out(sdf: HeadSDF, x: np.ndarray, margin: float) -> tuple[np.ndarray, int]:
+    """Move points (M,3) closer than ``margin`` to the head out along the SDF gradient.
+
+    Returns:
+        (new points (M,3) float64, number of points moved).
+    """
+    out = np.asarray(x, np.float64).copy()
+    near = np.nonzero(sdf(out) < margin)[0]
+    if len(near):
+        d, g = sdf.value_and_grad(out[near])
+        out[near] += np.maximum(margin - d, 0.0)[:, None] * g
+    return out, len(near)
+
+
+def follow_the_leader(points: np.ndarray, seg_len: np.ndarray) -> np.ndarray:
+    """Restore segment lengths (N,P-1) root to tip, keeping each segment's current direction.
+
+    Args:
+        points: (N,P,3) strands; the roots stay fixed.
+        seg_len: (N,P-1) target segment lengths.
+
+    Returns:
+        (N,P,3) float64 strands with exactly those segment lengths.
+    """
+    x = np.asarray(points, np.float64).copy()
+    for k in range(1, x.shape[1]):
+        v = x[:, k] - x[:, k - 1]
+        nv = np.linalg.norm(v, axis=-1, keepdims=True)
+        x[:, k] = x[:, k - 1] + np.where(nv > 1e-12, v / np.maximum(nv, 1e-12), 0.0) * seg_len[:, k - 1:k]
+    return x
+
+
+def resolve_collisions(sdf: HeadSDF, points: np.ndarray, margin: float = 1e-3, iters: int = 3,
+                       max_final: int = 8) -> np.ndarray:
+    """Push strands (N,P,3) out of the head, keeping segment lengths roughly constant.
+
+    ``iters`` rounds of (projection of all non-root points to at least ``margin`` outside the
+    head, then follow-the-leader length restoration), then projection alone until every non-root
+    point has a signed distance >= 1e-5 (at most ``max_final`` rounds). Roots are not moved.
+
+    Returns:
+        (N,P,3) float64 strands.
+    """
+    x = np.asarray(points, np.float64).copy()
+    n, p, _ = x.shape
+    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)
+    for _ in range(iters):
+        body, moved = project_out(sdf, x[:, 1:].reshape(-1, 3), margin)
+        if moved == 0:
+            return x
+        x[:, 1:] = body.reshape(n, p - 1, 3)
+        x = follow_the_leader(x, seg)
+    for _ in range(max_final):
+        body = x[:, 1:].reshape(-1, 3)
+        if float(np.min(sdf(body.astype(np.float32)))) >= 1e-5:
+            break
+        body, _ = project_out(sdf, body, margin)
+        x[:, 1:] = body.reshape(n, p - 1, 3)
+    return x
