@@ -54,7 +54,7 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], highlight: int | 
 
 
 def head_overlay(image: np.ndarray, camera, world_from_head: np.ndarray, head, landmarks_2d: np.ndarray | None,
-                 landmarks_head: np.ndarray, label: str = "") -> np.ndarray:
+                 landmarks_head: np.ndarray, label: str = "", crop: bool = True) -> np.ndarray:
     """Fitted head over one frame: mesh wireframe (front-facing edges), observed landmarks (red),
     projected model landmarks (green).
 
@@ -62,6 +62,7 @@ def head_overlay(image: np.ndarray, camera, world_from_head: np.ndarray, head, l
         image: (H, W, 3) uint8; camera: the Camera; world_from_head: (4, 4);
         head: object with ``vertices`` (V, 3), ``faces`` (F, 3); landmarks_2d: (68, 2) or None;
         landmarks_head: (68, 3) fitted model landmarks in the head frame.
+        crop: crop to a square around the projected head (1.3x its extent).
     """
     import cv2
 
@@ -87,6 +88,16 @@ def head_overlay(image: np.ndarray, camera, world_from_head: np.ndarray, head, l
         for p in landmarks_2d:
             if np.isfinite(p).all():
                 cv2.circle(out, tuple(np.round(p).astype(int)), r, (255, 0, 0), -1, cv2.LINE_AA)
+    if crop:
+        ok = np.isfinite(uv).all(axis=1) & (z > 0)
+        if ok.any():
+            lo, hi = uv[ok].min(axis=0), uv[ok].max(axis=0)
+            c, half = (lo + hi) / 2, 0.65 * float((hi - lo).max())
+            x0, y0 = np.clip(np.floor(c - half).astype(int), 0, None)
+            x1 = int(min(out.shape[1], np.ceil(c[0] + half)))
+            y1 = int(min(out.shape[0], np.ceil(c[1] + half)))
+            if x1 - x0 > 8 and y1 - y0 > 8:
+                out = np.ascontiguousarray(out[y0:y1, x0:x1])
     if label:
         _label(out, label)
     return out

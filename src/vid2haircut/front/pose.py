@@ -193,15 +193,31 @@ def refine_poses(points_head: np.ndarray, lmk2d: np.ndarray, inliers: np.ndarray
         uv = pc[:, :2] / pc[:, 2:3] @ K[:2, :2].T + K[:2, 2]
         res = [((uv - obs) / cfg.landmark_sigma_px).reshape(-1)]
         res.append((np.log(shape) - log_prior)[free] / sig_log[free])
-        for a, b in pairs:
-            dr = matrix_to_axis_angle(rot[a].T @ rot[b])
-            res.append(dr * w_rot)
-            res.append((tr[b] - tr[a]) * w_tr)
+        if pairs:
+            a, b = np.array(pairs).T
+            dr = matrix_to_axis_angle(np.swapaxes(rot[a], 1, 2) @ rot[b])  # (P, 3)
+            res.append(np.concatenate([dr * w_rot, (tr[b] - tr[a]) * w_tr], axis=1).reshape(-1))
         return np.concatenate(res)
 
+    # Jacobian sparsity: each residual block touches the shape and one or two frames' poses.
+    from scipy.sparse import lil_matrix
+
+    ns = int(free.sum())
+    n_res = 2 * len(obs_i) + ns + 6 * len(pairs)
+    sp = lil_matrix((n_res, len(x0)), dtype=np.int8)
+    rows = np.arange(2 * len(obs_i))
+    sp[rows, :ns] = 1
+    for k in range(6):
+        sp[rows, ns + 6 * np.repeat(obs_i, 2) + k] = 1
+    for k in range(ns):
+        sp[2 * len(obs_i) + k, k] = 1
+    r0 = 2 * len(obs_i) + ns
+    for q, (a, b) in enumerate(pairs):
+        for col in (ns + 6 * a, ns + 6 * b):
+            sp[r0 + 6 * q:r0 + 6 * q + 6, col:col + 6] = 1
     f_scale = cfg.robust_scale_px / cfg.landmark_sigma_px
-    sol = least_squares(residuals, x0, loss="soft_l1", f_scale=f_scale, method="trf", x_scale="jac",
-                        max_nfev=200, xtol=1e-10, ftol=1e-10)
+    sol = least_squares(residuals, x0, jac_sparsity=sp, loss="soft_l1", f_scale=f_scale, method="trf",
+                        x_scale="jac", max_nfev=200, xtol=1e-10, ftol=1e-10)
     shape, rv, tr = _unpack(sol.x, m, cfg)
     cam_from_head = make_transform(axis_angle_to_matrix(rv), tr)
     return shape, camera.cam_2_world[None] @ cam_from_head

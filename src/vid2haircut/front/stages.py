@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -108,7 +109,10 @@ def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframe
             source = "landmarks"
         log.info("head fit (%s): shape %s, reprojection error px %s", source, np.round(fit.shape, 4),
                  np.round(fit.reprojection_error_px, 2))
-        head = resolve_head(head_model, fit.shape if head_model == "proxy-v1" else None)
+        base = resolve_head(head_model)
+        # the shape factors are a per-axis linear map of the head frame (exact for the proxy head)
+        head = SimpleNamespace(vertices=np.asarray(base.vertices, np.float64) * shape_axes(fit.shape),
+                               faces=base.faces)
         pts = points * shape_axes(fit.shape)
         tiles = [head_overlay(seq.read_image(int(t)), seq.camera, fit.world_from_head[i], head,
                               fit.landmarks_2d[i], pts, f"t={int(t)} err={fit.reprojection_error_px[i]:.2f}px")

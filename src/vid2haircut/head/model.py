@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -10,6 +11,8 @@ import torch
 
 from vid2haircut.head import scalp as _scalp
 from vid2haircut.head.sdf import SDFGrid, sdf_lookup, sdf_lookup_np
+
+_SDF_LOCK = threading.Lock()
 
 # (N, 3) unit directions from the head centre -> ((N, 3) surface points, (N, 3) unit normals)
 RayCaster = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -25,7 +28,8 @@ class HeadModel:
         vertices: (V, 3) float32 mesh vertices.
         faces: (F, 3) int64 triangles, outward (counter-clockwise) winding.
         landmarks: (68, 3) float32 iBUG-68 points on the surface, or None when unknown.
-        sdf_grid: precomputed :class:`SDFGrid` of the mesh.
+        sdf_source: the :class:`SDFGrid` of the mesh, or a function building it (called once, on
+            first use of :attr:`sdf_grid`, :meth:`sdf` or :meth:`sdf_np`).
         center: (3,) float32 centre the scalp rays start from.
         caster: casts (N, 3) unit directions from ``center`` onto the surface -> (points, normals).
         params: the shape parameters the model was built with.
@@ -36,11 +40,20 @@ class HeadModel:
     vertices: np.ndarray
     faces: np.ndarray
     landmarks: np.ndarray | None
-    sdf_grid: SDFGrid
+    sdf_source: SDFGrid | Callable[[], SDFGrid] = field(repr=False)
     center: np.ndarray
     caster: RayCaster = field(repr=False)
     params: dict = field(default_factory=dict)
     ears_deg: tuple[float, float, float, float] | None = None
+
+    @property
+    def sdf_grid(self) -> SDFGrid:
+        """The precomputed signed distance grid (built on first access, then kept)."""
+        if not isinstance(self.sdf_source, SDFGrid):
+            with _SDF_LOCK:
+                if not isinstance(self.sdf_source, SDFGrid):
+                    self.sdf_source = self.sdf_source()
+        return self.sdf_source
 
     def scalp_uv_to_root(self, uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Scalp uv (..., 2) in [0, 1]^2 -> (points (..., 3), normals (..., 3)) float32.

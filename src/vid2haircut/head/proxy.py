@@ -13,10 +13,11 @@ import functools
 import numpy as np
 
 from vid2haircut.head.landmarks import landmark_directions
+from vid2haircut.head.meshdist import closest_points_on_mesh
 from vid2haircut.head.model import HeadModel
 from vid2haircut.head.radial import RadialShape, dirs_from_angles
 from vid2haircut.head.scalp import PROXY_EARS_DEG
-from vid2haircut.head.sdf import build_sdf_grid
+from vid2haircut.head.sdf import SDFGrid, build_sdf_grid
 
 PROXY_NAME = "proxy-v1"
 N_RINGS = 78      # latitude rings between the poles
@@ -83,20 +84,24 @@ def build_proxy_head(scale: float = 1.0, width: float = 1.0, depth: float = 1.0,
     """Build (and cache) the proxy head for the given shape factors."""
     shape = RadialShape(scale=scale, width=width, depth=depth, crown=crown)
     verts, faces = build_proxy_mesh(shape)
-    # Landmarks: rays through the base-shape landmark directions, mapped by the shape's axes.
+    # Landmarks: rays through the base-shape landmark directions, mapped by the shape's axes,
+    # then snapped onto the mesh (sub-millimetre move) so that they lie on the drawn surface.
     base = RadialShape(crown=crown)
     lm = base.surface_points(landmark_directions()) * shape.axes
+    lm = closest_points_on_mesh(verts, faces, lm, k=32)[2]
 
     def cast(dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return shape.surface_points(dirs), shape.normals(dirs)
 
-    sdf_grid = build_sdf_grid(verts, faces, inside=lambda p: shape.implicit(p) < 0.0)
+    def make_sdf() -> SDFGrid:
+        return build_sdf_grid(verts, faces, inside=lambda p: shape.implicit(p) < 0.0)
+
     return HeadModel(
         name=PROXY_NAME,
         vertices=verts.astype(np.float32),
         faces=faces,
         landmarks=lm.astype(np.float32),
-        sdf_grid=sdf_grid,
+        sdf_source=make_sdf,
         center=np.zeros(3, dtype=np.float32),
         caster=cast,
         params={"scale": scale, "width": width, "depth": depth, "crown": crown},

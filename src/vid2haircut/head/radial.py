@@ -19,7 +19,7 @@ import numpy as np
 
 # Smooth-union sharpness (1/m): fillet radius about 1/k.
 _UNION_K = 250.0
-_NECK_K = 400.0
+_NECK_K = 250.0
 
 # (elevation deg, azimuth deg, sigma_el deg, sigma_az deg, amplitude m); mirrored ones listed once
 # with positive azimuth and flagged by the last field.

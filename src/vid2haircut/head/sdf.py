@@ -45,7 +45,7 @@ def build_sdf_grid(vertices: np.ndarray, faces: np.ndarray,
                    res: int = 80, margin: float = 0.05) -> SDFGrid:
     """Precompute the signed distance of a triangle mesh on a regular grid.
 
-    Nodes in a band around the surface (within 1.5 node diagonals of a vertex) get the exact
+    Nodes in a band around the surface (about one node diagonal) get the exact
     point-triangle distance; every other node takes the distance to the closest surface point of
     its nearest band node (Euclidean feature transform), which is exact up to a tiny error far
     away where it does not matter.
@@ -70,11 +70,11 @@ def build_sdf_grid(vertices: np.ndarray, faces: np.ndarray,
     spacing = (hi - lo) / (res - 1)
     nodes = grid_nodes(lo, hi, res).reshape(-1, 3)
     edge = np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1).max()
-    band = 1.5 * float(np.linalg.norm(spacing)) + 0.5 * float(edge)
+    band = float(np.linalg.norm(spacing)) + 0.6 * float(edge)
     dist_v, _ = cKDTree(v).query(nodes, k=1, distance_upper_bound=band)
     near = np.isfinite(dist_v)
     near_idx = np.nonzero(near)[0]
-    near_dist, near_out, near_q = closest_points_on_mesh(v, f, nodes[near_idx])
+    near_dist, near_out, near_q = closest_points_on_mesh(v, f, nodes[near_idx], k=8)
     # Feature transform: every node -> its nearest band node (in metres, anisotropic spacing).
     _, ft = distance_transform_edt(~near.reshape(res, res, res), sampling=spacing,
                                    return_indices=True)

@@ -72,6 +72,8 @@ def strand_features(points: torch.Tensor) -> torch.Tensor:
     """
     offsets = points[..., 1:, :] - points[..., :1, :]                   # (...,P-1,3)
     n = offsets.shape[-2]
+    if offsets.numel() == 0:  # MKL rejects empty FFT batches
+        return offsets.new_zeros(*offsets.shape[:-2], 3 * n)
     spec = torch.fft.rfft(offsets, dim=-2, norm="ortho")                 # (...,n//2+1,3)
     w = _pair_weight(n, offsets.dtype, offsets.device)
     re = (spec.real * w).flatten(-2)
@@ -90,6 +92,8 @@ def features_to_offsets(features: torch.Tensor, n_points: int) -> torch.Tensor:
         (...,P-1,3) root-relative offsets.
     """
     n = n_points - 1
+    if features.numel() == 0:  # MKL rejects empty FFT batches
+        return features.new_zeros(*features.shape[:-1], n, 3)
     n_bins = n // 2 + 1
     keep = _imag_keep(n)
     n_im = keep.stop - keep.start

@@ -14,14 +14,17 @@ Example::
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from pathlib import Path
 from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 
+from vid2haircut.io.atomic import write_npz
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.strands import StrandSet
 
-__all__ = ["CorpusConfig", "Corpus", "build_corpus", "fit_codec", "generate_style"]
+__all__ = ["CorpusConfig", "Corpus", "build_corpus", "fit_codec", "generate_style", "save_corpus",
+           "load_corpus"]
 
 
 @dataclass(frozen=True)
@@ -140,3 +143,27 @@ def fit_codec(corpus: Corpus, k: int = 64, meta: dict | None = None) -> StrandCo
     """Fit a :class:`StrandCodec` on a corpus (its style list is recorded in the codec's meta)."""
     record = {"corpus_styles": [list(s) for s in corpus.styles], "corpus_strands": corpus.n_strands}
     return StrandCodec.fit(corpus.points, k=k, meta={**record, **(meta or {})})
+
+
+def save_corpus(path: str | Path, corpus: Corpus) -> None:
+    """Atomically write a corpus to an ``.npz`` (float32 points, for caching generated styles)."""
+    write_npz(path, points=corpus.points, uv=corpus.uv, style=corpus.style,
+              families=np.array([f for f, _ in corpus.styles]),
+              seeds=np.array([s for _, s in corpus.styles], np.int64))
+
+
+def load_corpus(path: str | Path) -> Corpus:
+    """Read a corpus written by :func:`save_corpus`."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: corpus file not found")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            data = {k: z[k] for k in ("points", "uv", "style", "families", "seeds")}
+    except (KeyError, ValueError, OSError) as exc:
+        raise ValueError(f"{path}: not a strand corpus .npz ({exc})") from exc
+    styles = tuple((str(f), int(s)) for f, s in zip(data["families"], data["seeds"]))
+    if data["points"].ndim != 3 or len(data["style"]) != len(data["points"]):
+        raise ValueError(f"{path}: inconsistent corpus arrays")
+    return Corpus(data["points"].astype(np.float32), data["uv"].astype(np.float32),
+                  data["style"].astype(np.int64), styles)

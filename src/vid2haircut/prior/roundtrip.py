@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Sequence
 
 import numpy as np
 import torch
 
 from vid2haircut.prior.codec import StrandCodec
+from vid2haircut.prior.corpus import Corpus
 from vid2haircut.prior.hairmap import assign_texels, decode_guides, encode_strands
 from vid2haircut.strands import StrandSet
 
-__all__ = ["codec_point_error", "HairMapRoundTrip", "hairmap_roundtrip"]
+__all__ = ["codec_point_error", "HairMapRoundTrip", "hairmap_roundtrip", "codec_errors_by_family",
+           "hairmap_errors_by_family", "markdown_table"]
 
 
 def codec_point_error(codec: StrandCodec, points: np.ndarray, k: int | None = None,
@@ -70,3 +72,38 @@ def hairmap_roundtrip(strands: StrandSet, head: Any, codec: StrandCodec, res: in
     shape = ((g[:, 1:] - g[:, :1]) - (gt[:, 1:] - gt[:, :1])).norm(dim=-1).mean()
     root = (g[:, 0] - gt[:, 0]).norm(dim=-1).mean()
     return HairMapRoundTrip(float(point), float(shape), float(root), int(g.shape[0]))
+
+
+def _families(corpus: Corpus) -> list[str]:
+    return list(dict.fromkeys(f for f, _ in corpus.styles))
+
+
+def codec_errors_by_family(codec: StrandCodec, corpus: Corpus, ks: Sequence[int]) -> dict[str, dict[int, float]]:
+    """Mean codec round-trip point error (m) per family and per number of components k."""
+    return {fam: {int(k): codec_point_error(codec, corpus.points[corpus.family_index(fam)], k) for k in ks}
+            for fam in _families(corpus)}
+
+
+def hairmap_errors_by_family(codec: StrandCodec, corpus: Corpus, head: Any,
+                             res: int = 32) -> dict[str, HairMapRoundTrip]:
+    """Hair-map round trip per family, averaged over its styles (weighted by guide count)."""
+    out = {}
+    for fam in _families(corpus):
+        rts = [hairmap_roundtrip(corpus.strand_set(i), head, codec, res)
+               for i, (f, _) in enumerate(corpus.styles) if f == fam]
+        n = np.array([r.n_guides for r in rts], np.float64)
+        w = n / max(n.sum(), 1.0)
+        mean = [float(np.nansum(w * np.array([getattr(r, name) for r in rts])))
+                for name in ("point_error", "shape_error", "root_error")]
+        out[fam] = HairMapRoundTrip(*mean, int(n.sum()))
+    return out
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
+    """A GitHub-flavoured Markdown table (floats printed with 3 decimals)."""
+    def cell(v: Any) -> str:
+        return f"{v:.3f}" if isinstance(v, float) else str(v)
+
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(cell(v) for v in row) + " |" for row in rows]
+    return "\n".join(lines)

@@ -35,7 +35,7 @@ def project_out(sdf: HeadSDF, x: np.ndarray, margin: float) -> tuple[np.ndarray,
         (new points (M,3) float64, number of points moved).
     """
     out = np.asarray(x, np.float64).copy()
-    near = np.nonzero(sdf(out) < margin)[0]
+    near, _ = sdf.near(out, margin)
     if len(near):
         d, g = sdf.value_and_grad(out[near])
         out[near] += np.maximum(margin - d, 0.0)[:, None] * g
@@ -82,7 +82,7 @@ def resolve_collisions(sdf: HeadSDF, points: np.ndarray, margin: float = 1e-3, i
         x = follow_the_leader(x, seg)
     for _ in range(max_final):
         body = x[:, 1:].reshape(-1, 3)
-        if float(np.min(sdf(body.astype(np.float32)))) >= 1e-5:
+        if len(sdf.near(body.astype(np.float32), 1e-5)[0]) == 0:
             break
         body, _ = project_out(sdf, body, margin)
         x[:, 1:] = body.reshape(n, p - 1, 3)

@@ -10,12 +10,13 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from scipy.ndimage import map_coordinates
 
 from .hair_params import HairParams
 
-__all__ = ["Roots", "FaceZone", "sample_roots", "uv_to_angles", "region_weights",
+__all__ = ["Roots", "FaceZone", "forehead_weight", "sample_roots", "uv_to_angles", "region_weights",
            "comb_direction", "length_map", "cut_level", "face_zone", "in_face_zone",
-           "fringe_weights", "hairline_angles", "smoothstep"]
+           "fringe_weights", "hairline_angles", "smoothstep", "zone_half_width"]
 
 _RHO_TO_THETA = 2.0 * np.pi / 3.0
 
@@ -31,11 +32,16 @@ class Roots(NamedTuple):
 
 
 class FaceZone(NamedTuple):
-    """Box in front of the face that hair must not enter (head frame, metres)."""
+    """Region in front of the face that hair must not enter (head frame, metres).
 
-    y_top: float     # eyebrow height: no hair below it in front of the face
-    y_bottom: float  # below the chin the zone ends
-    x_half: float    # half-width of the zone (outer eye corners plus a margin)
+    In the x-y plane it is the super-ellipse ``|x/x_half|^4 + |(y-y_mid)/y_half|^4 < 1`` spanning
+    from ``y_bottom`` (below the chin) to ``y_top`` (the eyebrows); in depth, everything in front
+    of ``z_min``. Its rounded top corners leave the temples free.
+    """
+
+    y_top: float     # eyebrow height: the top of the zone
+    y_bottom: float  # the zone ends below the chin
+    x_half: float    # largest half-width (outer eye corners plus a margin)
     z_min: float     # the zone is in front of this depth
     y_brow: float    # mean eyebrow height (fringe cut reference)
 
@@ -82,12 +88,20 @@ def sample_roots(head, n: int, rng: np.random.Generator, mask_res: int = 512) ->
     mask = np.asarray(head.scalp_mask(mask_res), bool)
     if not mask.any():
         raise ValueError(f"head {getattr(head, 'name', '?')!r} has an empty scalp mask")
-    # expected acceptance from a coarse evaluation of the Jacobian over the mask
-    rows, cols = np.nonzero(mask[::8, ::8])
-    probe = (np.stack([cols, rows], -1) * 8 + 4.5) / mask_res
-    jac = _area_jacobian(head, probe)
-    jmax = float(jac.max()) * 1.05
-    accept = mask.mean() * float(jac.mean()) / jmax
+    # area Jacobian on a coarse texel grid, bilinearly interpolated at the candidates
+    jres = 64
+    cj = (np.arange(jres) + 0.5) / jres
+    ju, jv = np.meshgrid(cj, cj, indexing="xy")                         # [row=v, col=u]
+    jac_map = _area_jacobian(head, np.stack([ju, jv], -1).reshape(-1, 2)).reshape(jres, jres)
+    coarse = mask.reshape(jres, mask_res // jres, jres, mask_res // jres).any(axis=(1, 3)) \
+        if mask_res % jres == 0 else np.ones((jres, jres), bool)
+    jmax = float(jac_map[coarse].max()) * 1.05
+    accept = mask.mean() * float(jac_map[coarse].mean()) / jmax
+
+    def jac_at(uv: np.ndarray) -> np.ndarray:
+        return map_coordinates(jac_map, [uv[:, 1] * jres - 0.5, uv[:, 0] * jres - 0.5],
+                               order=1, mode="nearest")
+
     g = int(np.ceil(np.sqrt(1.15 * n / max(accept, 1e-6)))) + 2
     for _ in range(20):
         ii, jj = np.meshgrid(np.arange(g), np.arange(g), indexing="xy")
@@ -95,7 +109,7 @@ def sample_roots(head, n: int, rng: np.random.Generator, mask_res: int = 512) ->
         col = np.clip((uv[:, 0] * mask_res).astype(int), 0, mask_res - 1)
         row = np.clip((uv[:, 1] * mask_res).astype(int), 0, mask_res - 1)
         uv = uv[mask[row, col]]
-        keep = rng.uniform(size=len(uv)) * jmax < _area_jacobian(head, uv)
+        keep = rng.uniform(size=len(uv)) * jmax < jac_at(uv)
         uv = uv[keep]
         if len(uv) >= n:
             break
@@ -163,24 +177,24 @@ def fringe_weights(theta: np.ndarray, phi: np.ndarray, hairline: np.ndarray,
     return np.clip(p.fringe * near * front, 0.0, 1.0)
 
 
-def comb_direction(x: np.ndarray, normal: np.ndarray, p: HairParams,
-                   fringe_w: np.ndarray) -> np.ndarray:
+def comb_direction(x: np.ndarray, normal: np.ndarray, p: HairParams, fringe_w: np.ndarray,
+                   crown: np.ndarray) -> np.ndarray:
     """Combing direction at points ``x`` (N,3), tangent to the surface with unit ``normal`` (N,3).
 
-    A blend of: radial flow away from the crown axis, sideways flow away from the parting line and
-    backward flow (both on the front-top of the head), a downward pull, and for fringe strands
-    (weight ``fringe_w`` (N,)) a forward-and-down flow.
+    A blend of: flow away from the crown whorl (``crown`` (3,), the top of the head moved to
+    ``p.crown_z``), sideways flow away from the parting line and backward flow (both on the
+    front-top of the head), a downward pull, and for fringe strands (weight ``fringe_w`` (N,)) a
+    forward-and-down flow.
 
     Returns:
         (N,3) unit vectors orthogonal to ``normal``.
     """
-    n_ = len(x)
-    radial = np.stack([x[:, 0], np.zeros(n_), x[:, 2] - p.crown_z], -1)
-    radial /= np.maximum(np.linalg.norm(radial, axis=-1, keepdims=True), 1e-4)
+    radial = x - np.array([crown[0], crown[1], p.crown_z])
+    radial /= np.maximum(np.linalg.norm(radial, axis=-1, keepdims=True), 0.01)
     top_front = smoothstep(p.crown_z - 0.01, p.crown_z + 0.04, x[:, 2]) * smoothstep(-0.01, 0.04, x[:, 1])
     side = np.tanh((x[:, 0] - p.part_x) / 0.006)
     fw = fringe_w[:, None]
-    c = p.radial_weight * radial * (1.0 - 0.5 * fw)
+    c = p.radial_weight * radial * (1.0 - 0.5 * fw) * (1.0 - 0.8 * top_front[:, None] * (1.0 - fw))
     c = c + (1.0 - fw) * top_front[:, None] * (
         p.part_weight * side[:, None] * np.array([1.0, 0.0, 0.0])
         + p.back_weight * np.array([0.0, 0.0, -1.0]))
@@ -193,17 +207,36 @@ def comb_direction(x: np.ndarray, normal: np.ndarray, p: HairParams,
     return c / np.maximum(np.linalg.norm(c, axis=-1, keepdims=True), 1e-12)
 
 
+def forehead_weight(x: np.ndarray, zone: FaceZone) -> np.ndarray:
+    """(N,) in [0,1]: 1 for points (N,3) above the face (in front, between the temples, above
+    the eyebrows), where non-fringe hair must keep following its combing direction."""
+    return (smoothstep(zone.z_min - 0.03, zone.z_min, x[:, 2])
+            * (1.0 - smoothstep(zone.x_half, zone.x_half + 0.02, np.abs(x[:, 0])))
+            * smoothstep(zone.y_top - 0.01, zone.y_top + 0.01, x[:, 1]))
+
+
 def face_zone(landmarks: np.ndarray) -> FaceZone:
     """The keep-out box in front of the face from iBUG-68 landmarks (68,3)."""
     lm = np.asarray(landmarks, np.float64)
     brows, eyes = lm[17:27], lm[36:48]
     y_brow = float(brows[:, 1].mean())
     return FaceZone(y_top=y_brow, y_bottom=float(lm[8, 1]) - 0.03,
-                    x_half=float(np.abs(eyes[:, 0]).max()) + 0.012,
-                    z_min=float(eyes[:, 2].min()) - 0.02, y_brow=y_brow)
+                    x_half=float(np.abs(eyes[:, 0]).max()) + 0.014,
+                    z_min=float(eyes[:, 2].min()) - 0.04, y_brow=y_brow)
+
+
+def zone_half_width(y: np.ndarray, zone: FaceZone) -> np.ndarray:
+    """Half-width (...) of the face zone at heights ``y`` (...); 0 above / below it."""
+    mid, half = 0.5 * (zone.y_top + zone.y_bottom), 0.5 * (zone.y_top - zone.y_bottom)
+    r = np.clip(1.0 - ((np.asarray(y, np.float64) - mid) / half) ** 4, 0.0, None)
+    return zone.x_half * r ** 0.25
 
 
 def in_face_zone(points: np.ndarray, zone: FaceZone) -> np.ndarray:
-    """Boolean (...) mask of points (...,3) inside the face keep-out box."""
-    return ((points[..., 1] < zone.y_top) & (points[..., 1] > zone.y_bottom)
-            & (np.abs(points[..., 0]) < zone.x_half) & (points[..., 2] > zone.z_min))
+    """Boolean (...) mask of points (...,3) inside the face keep-out zone."""
+    pts = np.asarray(points)
+    cand = ((pts[..., 2] > zone.z_min) & (np.abs(pts[..., 0]) < zone.x_half)
+            & (pts[..., 1] < zone.y_top) & (pts[..., 1] > zone.y_bottom))
+    sel = pts[cand]
+    cand[cand] = np.abs(sel[:, 0]) < zone_half_width(sel[:, 1], zone)
+    return cand

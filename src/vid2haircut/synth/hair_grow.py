@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .hair_fields import FaceZone, comb_direction, cut_level, in_face_zone
+from .hair_fields import (FaceZone, comb_direction, cut_level, forehead_weight, in_face_zone,
+                          zone_half_width)
 from .hair_params import HairParams
 from .hair_sdf import HeadSDF
 
-__all__ = ["grow_centrelines", "cut_and_sample"]
+__all__ = ["grow_centrelines", "cut_and_sample", "sample_prefix", "truncate_at_face"]
 
 _DOWN = np.array([0.0, -1.0, 0.0])
 
@@ -26,7 +27,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 
 def grow_centrelines(sdf: HeadSDF, roots: np.ndarray, normals: np.ndarray, lengths: np.ndarray,
-                     fringe_w: np.ndarray, p: HairParams, zone: FaceZone,
+                     fringe_w: np.ndarray, p: HairParams, zone: FaceZone, crown: np.ndarray,
                      n_steps: int = 100) -> np.ndarray:
     """Integrate strand centrelines from the roots.
 
@@ -39,6 +40,7 @@ def grow_centrelines(sdf: HeadSDF, roots: np.ndarray, normals: np.ndarray, lengt
             zone (they are cut above it instead).
         p: style parameters.
         zone: face keep-out box.
+        crown: (3,) top of the head (the combing field's centre, see ``comb_direction``).
         n_steps: S segments per strand.
 
     Returns:
@@ -48,15 +50,17 @@ def grow_centrelines(sdf: HeadSDF, roots: np.ndarray, normals: np.ndarray, lengt
     seg = (np.asarray(lengths, np.float64) / n_steps)[:, None]              # (N,1)
     x = np.asarray(roots, np.float64).copy()
     nrm = np.asarray(normals, np.float64)
-    t = _unit(p.lift * nrm + comb_direction(x, nrm, p, fringe_w))
+    t = _unit(p.lift * nrm + comb_direction(x, nrm, p, fringe_w, crown))
     out = np.empty((n, n_steps + 1, 3))
     out[:, 0] = x
     deflect = (fringe_w < 0.5)
     for k in range(1, n_steps + 1):
         s = (k - 1) * seg                                                   # (N,1)
         d, g = sdf.value_and_grad(x)
-        c = comb_direction(x, g, p, fringe_w)
-        kc = p.comb_strength * np.exp(-s / p.comb_decay)
+        c = comb_direction(x, g, p, fringe_w, crown)
+        # the combing pull decays with arc length, except above the face (non-fringe strands)
+        kc = p.comb_strength * (np.exp(-s / p.comb_decay)
+                                + 3.0 * (forehead_weight(x, zone) * deflect)[:, None])
         t = t + seg * kc * (c - (c * t).sum(-1, keepdims=True) * t)
         t = t + seg * p.gravity * (_DOWN - (t @ _DOWN)[:, None] * t)
         t = _unit(t)
@@ -72,7 +76,7 @@ def grow_centrelines(sdf: HeadSDF, roots: np.ndarray, normals: np.ndarray, lengt
         inside = in_face_zone(x, zone) & deflect
         if inside.any():
             sgn = np.where(x[inside, 0] >= 0.0, 1.0, -1.0)
-            x[inside, 0] = sgn * zone.x_half * 1.001
+            x[inside, 0] = sgn * (zone_half_width(x[inside, 1], zone) + 1e-4)
             ti = t[inside]
             ti[:, 0] = sgn * np.maximum(sgn * ti[:, 0], 0.3)
             t[inside] = _unit(ti)
@@ -116,8 +120,43 @@ def cut_and_sample(poly: np.ndarray, p: HairParams, zone: FaceZone, fringe_w: np
     frac = np.where((b <= 0.0) & (a > 0.0), a / np.maximum(a - b, 1e-12), 0.0)
     length = np.where(has_cut, (k - 1 + frac) * seg, (s1 - 1) * seg)
     length = np.minimum(np.maximum(length, min_length), (s1 - 1) * seg)
-    q = np.linspace(0.0, 1.0, n_points)[None] * (length / np.maximum(seg, 1e-12))[:, None]
-    i0 = np.clip(np.floor(q).astype(int), 0, s1 - 2)
-    f = (q - i0)[..., None]
-    r = rows[:, None]
-    return poly[r, i0] * (1.0 - f) + poly[r, i0 + 1] * f
+    return sample_prefix(poly, length, n_points)
+
+
+def sample_prefix(points: np.ndarray, length: np.ndarray, n_points: int) -> np.ndarray:
+    """Sample the first ``length`` (N,) metres of polylines (N,S,3) at ``n_points`` points
+    equally spaced by arc length (lengths beyond a polyline's end are clamped to it).
+
+    Returns:
+        (N,n_points,3) float64.
+    """
+    x = np.asarray(points, np.float64)
+    n, s1, _ = x.shape
+    cum = np.concatenate([np.zeros((n, 1)), np.cumsum(np.linalg.norm(np.diff(x, axis=1), axis=-1), 1)], 1)
+    target = np.linspace(0.0, 1.0, n_points)[None] * np.minimum(length, cum[:, -1])[:, None]
+    # one global search: offset each row beyond the previous row's range
+    offs = (np.arange(n) * (cum[:, -1].max() + 1.0))[:, None]
+    j = np.searchsorted((cum + offs).ravel(), (target + offs).ravel(), side="right").reshape(n, n_points)
+    j = np.clip(j - np.arange(n)[:, None] * s1 - 1, 0, s1 - 2)
+    r = np.arange(n)[:, None]
+    c0, c1 = cum[r, j], cum[r, j + 1]
+    f = np.clip(np.divide(target - c0, c1 - c0, out=np.zeros_like(target), where=c1 > c0), 0.0, 1.0)
+    return x[r, j] + f[..., None] * (x[r, j + 1] - x[r, j])
+
+
+def truncate_at_face(points: np.ndarray, zone: FaceZone) -> np.ndarray:
+    """Cut strands (N,P,3) just before their first point inside the face zone and resample them
+    to P points; other strands are returned unchanged. Returns (N,P,3) float64."""
+    x = np.asarray(points, np.float64)
+    inside = in_face_zone(x, zone)
+    inside[:, 0] = False
+    hit = np.nonzero(inside.any(1))[0]
+    if len(hit) == 0:
+        return x
+    k = np.argmax(inside[hit], axis=1)                                      # first inside index
+    sub = x[hit]
+    cum = np.concatenate([np.zeros((len(hit), 1)),
+                          np.cumsum(np.linalg.norm(np.diff(sub, axis=1), axis=-1), 1)], 1)
+    out = x.copy()
+    out[hit] = sample_prefix(sub, cum[np.arange(len(hit)), k - 1], x.shape[1])
+    return out

@@ -107,7 +107,7 @@ class HairParams:
 
 
 _MEDIUM = dict(l_top=0.6, l_front=0.6, l_side=0.6, l_back=0.6, part_weight=1.0, back_weight=0.35,
-               gravity=32.0, volume=0.05)
+               gravity=32.0, volume=0.05, max_offset=0.02)
 
 FAMILY_PARAMS: dict[str, HairParams] = {
     "buzz": HairParams(l_top=0.008, l_front=0.006, l_side=0.005, l_back=0.005, length_jitter=0.12,

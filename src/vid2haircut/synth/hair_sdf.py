@@ -27,17 +27,33 @@ class HeadSDF:
         self.head = head
         grid = getattr(head, "sdf_grid", None)
         self._grid = None
-        if grid is not None:
-            vals = np.asarray(grid.values, np.float64)
-            if vals.ndim == 3 and min(vals.shape) >= 2:
-                lo = np.asarray(grid.bbox_min, np.float64)
-                hi = np.asarray(grid.bbox_max, np.float64)
-                self._grid = (vals.ravel(), np.array(vals.shape), lo, hi,
-                              (np.array(vals.shape) - 1) / (hi - lo))
+        if grid is not None and np.ndim(grid.values) == 3 and min(np.shape(grid.values)) >= 2:
+            self._grid = _packed_grid(grid)
+        verts = getattr(head, "vertices", None)
+        self._aabb = None
+        if verts is not None and len(verts):
+            v = np.asarray(verts, np.float64)
+            self._aabb = (v.min(axis=0), v.max(axis=0))
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
         """Signed distance (M,) float64 at points (M,3), metres, negative inside."""
         return self.value_and_grad(x, grad=False)[0]
+
+    def near(self, x: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
+        """Points (M,3) closer to the head than ``margin``: (indices (K,), distances (K,)).
+
+        Points farther than ``margin`` from the mesh's bounding box are skipped without a lookup
+        (they cannot be that close to the mesh).
+        """
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        idx = np.arange(len(x))
+        if self._aabb is not None:
+            lo, hi = self._aabb
+            inb = ((x > lo - margin) & (x < hi + margin)).all(-1)
+            idx = idx[inb]
+        d = self(x[idx])
+        keep = d < margin
+        return idx[keep], d[keep]
 
     def value_and_grad(self, x: np.ndarray, grad: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """Signed distance (M,) and its unit gradient (M,3) at points (M,3) (float64).
@@ -48,31 +64,28 @@ class HeadSDF:
         x = np.asarray(x, np.float64).reshape(-1, 3)
         if self._grid is None:
             return self._fallback(x, grad)
-        flat, shape, lo, hi, inv = self._grid
+        corners, shape, lo, hi, inv = self._grid
         c = np.minimum(np.maximum(x, lo), hi)
         diff = x - c
         outside = np.sqrt((diff * diff).sum(-1))
-        g = (c - lo) * inv
-        i0 = np.clip(np.floor(g).astype(np.int64), 0, shape - 2)
+        g = ((c - lo) * inv).astype(np.float32)
+        i0 = np.minimum(g.astype(np.int32), shape - 2)           # g >= 0, so truncation = floor
         t = g - i0
-        s1, s2 = int(shape[1]), int(shape[2])
-        base = (i0[:, 0] * s1 + i0[:, 1]) * s2 + i0[:, 2]
-        v = np.stack([flat[base + (dx * s1 + dy) * s2 + dz]
-                      for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)], -1)     # (M,8)
-        v = v.reshape(-1, 2, 2, 2)
+        cell = (i0[:, 0] * (shape[1] - 1) + i0[:, 1]) * (shape[2] - 1) + i0[:, 2]
+        v = corners[cell].reshape(-1, 2, 2, 2)                                     # (M,2,2,2)
         tx, ty, tz = t[:, 0, None, None], t[:, 1, None], t[:, 2]
-        vx = v[:, 0] * (1 - tx) + v[:, 1] * tx                                     # (M,2,2)
-        vxy = vx[:, 0] * (1 - ty) + vx[:, 1] * ty                                  # (M,2)
-        d = vxy[:, 0] * (1 - tz) + vxy[:, 1] * tz + outside
+        vx = v[:, 0] + (v[:, 1] - v[:, 0]) * tx                                    # (M,2,2)
+        vxy = vx[:, 0] + (vx[:, 1] - vx[:, 0]) * ty                                # (M,2)
+        d = (vxy[:, 0] + (vxy[:, 1] - vxy[:, 0]) * tz).astype(np.float64) + outside
         if not grad:
             return d, None
         gz = (vxy[:, 1] - vxy[:, 0]) * inv[2]
         vy = vx[:, 1] - vx[:, 0]                                                   # (M,2)
-        gy = (vy[:, 0] * (1 - tz) + vy[:, 1] * tz) * inv[1]
+        gy = (vy[:, 0] + (vy[:, 1] - vy[:, 0]) * tz) * inv[1]
         dxv = v[:, 1] - v[:, 0]                                                    # (M,2,2)
-        dxy = dxv[:, 0] * (1 - ty) + dxv[:, 1] * ty
-        gx = (dxy[:, 0] * (1 - tz) + dxy[:, 1] * tz) * inv[0]
-        gr = np.stack([gx, gy, gz], -1)
+        dxy = dxv[:, 0] + (dxv[:, 1] - dxv[:, 0]) * ty
+        gx = (dxy[:, 0] + (dxy[:, 1] - dxy[:, 0]) * tz) * inv[0]
+        gr = np.stack([gx, gy, gz], -1).astype(np.float64)
         out = outside > 0
         if out.any():
             gr[out] = diff[out] / outside[out, None]
@@ -92,3 +105,25 @@ class HeadSDF:
         v = np.asarray(self.head.sdf_np((x[None] + off[:, None]).reshape(-1, 3)),
                        np.float64).reshape(6, len(x))
         return d, self._normalise((v[:3] - v[3:]).T / (2 * h), x)
+
+
+_PACKED: dict[int, tuple] = {}
+
+
+def _packed_grid(grid) -> tuple:
+    """The grid's 8 cell-corner values stored contiguously per cell ((R-1)^3, 8) float32, so one
+    row gather serves a trilinear lookup; cached per values array."""
+    hit = _PACKED.get(id(grid.values))
+    if hit is not None and hit[0] is grid.values:
+        return hit[1]
+    vals = np.asarray(grid.values, np.float32)
+    r = np.array(vals.shape)
+    corners = np.stack([vals[dx:r[0] - 1 + dx, dy:r[1] - 1 + dy, dz:r[2] - 1 + dz]
+                        for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)], -1).reshape(-1, 8)
+    lo = np.asarray(grid.bbox_min, np.float64)
+    hi = np.asarray(grid.bbox_max, np.float64)
+    packed = (np.ascontiguousarray(corners), r.astype(np.int32), lo, hi, (r - 1) / (hi - lo))
+    if len(_PACKED) > 8:
+        _PACKED.clear()
+    _PACKED[id(grid.values)] = (grid.values, packed)
+    return packed

@@ -27,7 +27,7 @@ from .hair_collide import lift_roots, resolve_collisions
 from .hair_color import sample_colors
 from .hair_fields import (face_zone, fringe_weights, hairline_angles, length_map,
                           sample_roots)
-from .hair_grow import cut_and_sample, grow_centrelines
+from .hair_grow import cut_and_sample, grow_centrelines, truncate_at_face
 from .hair_params import FAMILY_PARAMS, HairParams, sample_params
 from .hair_sdf import HeadSDF
 from .hair_shape import apply_clumps, apply_curl, apply_frizz, assign_clumps
@@ -96,14 +96,17 @@ def generate_hairstyle(family: str, seed: int, head=None, n_strands: int = 10000
     cut_offset = r_grow.normal(0.0, p.cut_jitter, n)
     zone = face_zone(head.landmarks)
 
-    poly = grow_centrelines(sdf, root_pts, roots.normals, lengths, fringe_w, p, zone, int(n_steps))
+    crown = np.asarray(head.scalp_uv_to_root(np.array([[0.5, 0.5]], np.float32))[0][0], np.float64)
+    poly = grow_centrelines(sdf, root_pts, roots.normals, lengths, fringe_w, p, zone, crown,
+                            int(n_steps))
     pts = cut_and_sample(poly, p, zone, fringe_w, cut_offset, npts)
     clumps = assign_clumps(root_pts, p.strands_per_clump, r_shape)
     pts = apply_clumps(pts, clumps, p.clump_strength, p.clump_power, r_shape)
     pts = apply_curl(pts, p, clumps, r_shape)
     pts = apply_frizz(pts, p, r_shape)
-    pts = resample_polylines(pts, npts)
+    pts = truncate_at_face(resample_polylines(pts, npts), zone)
     pts = resolve_collisions(sdf, pts)
+    pts = resolve_collisions(sdf, truncate_at_face(pts, zone), iters=0)   # the face stays clear
 
     _, colors = sample_colors(p.palette, n, r_col)
     return StrandSet(pts.astype(np.float32), {"color": colors, "uv": roots.uv},

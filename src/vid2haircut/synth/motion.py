@@ -16,6 +16,7 @@ motion (and the sway amplitude) does not depend on the frame count.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 
@@ -160,32 +161,56 @@ def _push_out(head, rest: np.ndarray, moved: np.ndarray, mag: np.ndarray, bound:
     return flat.reshape(rest.shape)
 
 
-def sway_points(rest: np.ndarray, params: MotionParams, t: int, head=None, margin: float = 2e-4,
-                rest_sdf: np.ndarray | None = None) -> np.ndarray:
+class SwayBasis(NamedTuple):
+    """Frame-independent parts of the sway of one rest hairstyle (see :func:`sway_basis`).
+
+    rest: (N, P, 3) float32 rest points; lever: (N, P, 3) float32 ``rest - root``;
+    weight: (N, P) float32 ``arc_fraction ** 2``; rest_sdf: (N, P) float32 head SDF or None.
+    """
+
+    rest: np.ndarray
+    lever: np.ndarray
+    weight: np.ndarray
+    rest_sdf: np.ndarray | None
+
+
+def sway_basis(rest: np.ndarray, head=None) -> SwayBasis:
+    """Precompute the frame-independent sway terms of (N, P, 3) rest strands (SDF only with a head)."""
+    rest = np.ascontiguousarray(rest, dtype=np.float32)
+    lever = rest - rest[:, :1]
+    weight = (arc_fraction(rest.astype(np.float64)) ** 2).astype(np.float32)
+    sdf = None if head is None else np.asarray(head.sdf_np(rest), np.float32).reshape(rest.shape[:2])
+    return SwayBasis(rest, lever, weight, sdf)
+
+
+def sway_points(rest: np.ndarray | SwayBasis, params: MotionParams, t: int, head=None,
+                margin: float = 2e-4) -> np.ndarray:
     """Moved strands at frame t in the canonical frame.
 
     Args:
-        rest: (N, P, 3) rest strands (root first), canonical head frame, metres.
+        rest: (N, P, 3) rest strands (root first), canonical head frame, metres, or their
+            :class:`SwayBasis` (same result, faster when called for many frames).
         params: the motion record.
         t: frame index.
         head: a head model with ``sdf_np``; when given, moved points are pushed out of the head.
         margin: SDF (metres) a point found inside the head is pushed out to.
-        rest_sdf: (N, P) ``head.sdf_np(rest)`` if already known (saves time; same result).
     Returns:
         (N, P, 3) float32 points; roots unchanged, ``|moved - rest| <= sway_max_m``.
     """
-    rest = np.asarray(rest, dtype=np.float64)
-    omega = lagged_angular_velocity(params, t)
-    lever = rest - rest[:, :1]
-    w = arc_fraction(rest) ** 2
-    d = -params.sway_gain * w[..., None] * np.cross(omega, lever)
-    m = params.sway_max_m
-    mag = np.linalg.norm(d, axis=-1, keepdims=True)
+    basis = rest if isinstance(rest, SwayBasis) else sway_basis(rest, head)
+    if head is not None and basis.rest_sdf is None:
+        basis = sway_basis(basis.rest, head)
+    o = lagged_angular_velocity(params, t).astype(np.float32)
+    lx, ly, lz = basis.lever[..., 0], basis.lever[..., 1], basis.lever[..., 2]
+    g = np.float32(-params.sway_gain) * basis.weight
+    d = np.stack([(o[1] * lz - o[2] * ly) * g, (o[2] * lx - o[0] * lz) * g, (o[0] * ly - o[1] * lx) * g], -1)
+    m = np.float32(params.sway_max_m)
+    mag = np.sqrt((d * d).sum(-1))
     eff = m * np.tanh(mag / m)
-    d *= eff / np.maximum(mag, 1e-12)
-    moved = rest + d
+    d *= (eff / np.maximum(mag, np.float32(1e-12)))[..., None]
+    moved = basis.rest + d
     if head is not None:
-        moved = _push_out(head, rest, moved, eff.reshape(-1), m, margin, rest_sdf)
+        moved = _push_out(head, basis.rest, moved, eff.reshape(-1), float(m), margin, basis.rest_sdf)
     return moved.astype(np.float32)
 
 
@@ -204,5 +229,8 @@ def moved_strands(rest, meta: dict, t: int, head=None, rest_sdf: np.ndarray | No
     points = getattr(rest, "points", rest)
     if "motion" not in meta:
         raise ValueError("meta record has no 'motion' entry (not written by the synthesiser?)")
-    return sway_points(np.asarray(points), MotionParams.from_dict(meta["motion"]), t, head,
-                       rest_sdf=rest_sdf)
+    basis = sway_basis(np.asarray(points), None)
+    if head is not None:
+        basis = basis._replace(rest_sdf=np.asarray(head.sdf_np(basis.rest), np.float32) if rest_sdf is None
+                               else np.asarray(rest_sdf, np.float32).reshape(basis.weight.shape))
+    return sway_points(basis, MotionParams.from_dict(meta["motion"]), t, head)

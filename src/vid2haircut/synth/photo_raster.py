@@ -131,6 +131,28 @@ def _barycentric(tri: np.ndarray, px: np.ndarray, py: np.ndarray, area: np.ndarr
     return np.where(b < 0, b, persp), zc
 
 
+def _hidden_segments(a: np.ndarray, d: np.ndarray, occ: np.ndarray, max_len: float) -> np.ndarray:
+    """(M,3) starts, (M,3) deltas, (H,W) occluder depth -> (M,) bool: certainly fully occluded.
+
+    A segment no longer than ``max_len`` pixels is hidden when the largest occluder depth within
+    ``max_len`` pixels of its start is in front of both of its ends (conservative: no sample of
+    it could pass the depth test). Empty pixels are +inf, so segments near the silhouette stay.
+    """
+    import cv2
+
+    r = int(np.ceil(max_len)) + 1
+    occ = np.where(np.isfinite(occ), occ, np.float32(3.0e38)).astype(np.float32)
+    dil = cv2.dilate(occ, np.ones((2 * r + 1, 2 * r + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                     borderValue=3.0e38)
+    h, w = occ.shape
+    xi = np.floor(a[:, 0] + 0.5).astype(np.int64)
+    yi = np.floor(a[:, 1] + 0.5).astype(np.int64)
+    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h)
+    front = np.take(dil.reshape(-1), np.where(inside, yi * w + xi, 0))
+    short = np.hypot(d[:, 0], d[:, 1]) <= max_len
+    return inside & short & (front < np.minimum(a[:, 2], a[:, 2] + d[:, 2]))
+
+
 def splat_polylines(points: np.ndarray, height: int, width: int, occluder_depth: np.ndarray | None = None,
                     step: float = 1.0, near: float = 1e-3) -> StrandFragments:
     """Z-buffer polylines as dense point samples (one pixel wide).
@@ -146,39 +168,52 @@ def splat_polylines(points: np.ndarray, height: int, width: int, occluder_depth:
         :class:`StrandFragments`; ``segment`` indexes the N * (P - 1) segments.
     """
     pts = np.asarray(points, dtype=np.float32)
-    n, p = pts.shape[:2]
     a = pts[:, :-1].reshape(-1, 3)
     d = (pts[:, 1:] - pts[:, :-1]).reshape(-1, 3)
     inb = ((a[:, 2] > near) & (a[:, 2] + d[:, 2] > near)
            & (np.minimum(a[:, 0], a[:, 0] + d[:, 0]) < width) & (np.maximum(a[:, 0], a[:, 0] + d[:, 0]) > -1)
            & (np.minimum(a[:, 1], a[:, 1] + d[:, 1]) < height) & (np.maximum(a[:, 1], a[:, 1] + d[:, 1]) > -1))
+    occ = None if occluder_depth is None else np.asarray(occluder_depth, np.float32).reshape(-1)
+    if occ is not None:
+        inb &= ~_hidden_segments(a, d, occ.reshape(height, width), max_len=8.0)
     seg = np.flatnonzero(inb)
-    a, d = a[seg], d[seg]
-    length = np.hypot(d[:, 0], d[:, 1])
-    k = np.maximum(np.ceil(length / step), 1).astype(np.int64)
-    total = int(k.sum())
-    sid = np.repeat(np.arange(seg.size, dtype=np.int64), k)
-    first = np.repeat(np.cumsum(k) - k, k)
-    frac = ((np.arange(total, dtype=np.int64) - first).astype(np.float32) + 0.5) / k[sid].astype(np.float32)
-    xs = np.floor(np.take(a[:, 0], sid) + frac * np.take(d[:, 0], sid) + 0.5).astype(np.int64)
-    ys = np.floor(np.take(a[:, 1], sid) + frac * np.take(d[:, 1], sid) + 0.5).astype(np.int64)
-    zs = np.take(a[:, 2], sid) + frac * np.take(d[:, 2], sid)
-    ok = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height)
-    pix = ys * width + xs
-    if occluder_depth is not None:
-        ok &= zs < np.take(np.asarray(occluder_depth, np.float32).reshape(-1), np.where(ok, pix, 0))
-    pix, zs, sid, frac = pix[ok], zs[ok], sid[ok], frac[ok]
     depth = np.full((height, width), np.inf, np.float32)
     segment = np.full((height, width), -1, np.int64)
     fr = np.zeros((height, width), np.float32)
-    if pix.size == 0:
+    if seg.size == 0:
         return StrandFragments(depth, segment, fr)
-    z_min, z_max = float(zs.min()), float(zs.max())
-    sample = np.arange(pix.size, dtype=np.int64)
-    if pix.size > _ID_MASK:
-        raise ValueError(f"too many strand samples ({pix.size}) for the z-buffer key")
+    a, d = a[seg], d[seg]
+    ax, ay, az = (np.ascontiguousarray(a[:, i]) for i in range(3))
+    dx, dy, dz = (np.ascontiguousarray(d[:, i]) for i in range(3))
+    k = np.maximum(np.ceil(np.hypot(dx, dy) / step), 1).astype(np.int64)
+    total = int(k.sum())
+    if total > _ID_MASK:
+        raise ValueError(f"too many strand samples ({total}) for the z-buffer key")
+    sid = np.repeat(np.arange(seg.size, dtype=np.int32), k)
+    # position of each sample inside its segment, (i + 0.5) / k (float32 exact below 2^24 samples)
+    ftype = np.float32 if total < (1 << 24) else np.float64
+    frac = np.arange(total, dtype=ftype)
+    frac -= np.repeat((np.cumsum(k) - k).astype(ftype) - ftype(0.5), k)
+    frac *= np.repeat((1.0 / k).astype(ftype), k)
+    frac = frac.astype(np.float32, copy=False)
+    # nearest pixel; (x + 1.5) truncated - 1 == floor(x + 0.5) for x >= -1.5, negative below
+    xs = (np.take(ax, sid) + frac * np.take(dx, sid) + np.float32(1.5)).astype(np.int32) - 1
+    ys = (np.take(ay, sid) + frac * np.take(dy, sid) + np.float32(1.5)).astype(np.int32) - 1
+    zs = np.take(az, sid) + frac * np.take(dz, sid)
+    ok = (xs >= 0) & (xs < width) & (ys >= 0) & (ys < height)
+    pix = ys * np.int32(width) + xs
+    np.multiply(pix, ok, out=pix)  # out-of-image samples -> pixel 0, dropped below
+    if occ is not None:
+        ok &= zs < np.take(occ, pix)
+    z_lo = float(np.minimum(az, az + dz).min())
+    z_hi = float(np.maximum(az, az + dz).max())
+    scale = np.float32((1 << 24) / max(z_hi - z_lo, 1e-9))
+    q = ((zs - np.float32(z_lo)) * scale).astype(np.int64)
+    np.left_shift(q, _ID_BITS, out=q)
+    q |= np.arange(total, dtype=np.int64)
+    keep = np.flatnonzero(ok)
     buf = np.full(height * width, _EMPTY, np.int64)
-    np.minimum.at(buf, pix, (_quantise(zs, z_min, z_max) << _ID_BITS) | sample)
+    np.minimum.at(buf, pix[keep], q[keep])
     hit = np.flatnonzero(buf != _EMPTY)
     win = buf[hit] & _ID_MASK
     depth.reshape(-1)[hit] = zs[win]

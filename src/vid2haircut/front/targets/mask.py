@@ -6,12 +6,16 @@ Fallback (for real head-and-shoulders video without hair masks), per frame:
 2. face region: the polygon of the jaw contour closed over the brows -> definite background;
    the forehead band above the brows (up to ``forehead`` x face height) -> probable background
    (bangs may cover it);
-3. body: below the chin line -> probable background, below the jaw contour inside its x extent
-   (the neck) -> definite background;
-4. the rest of F -> probable hair; everything outside F -> definite background;
-5. GrabCut (colour GMMs) refines the labels; the result is intersected with F, cleaned by a
-   small morphological opening and restricted to the connected components touching the region
-   above the brows.
+3. body: below the jaw contour inside its x extent (the neck) -> definite background;
+4. F above the chin, at least ``seed_border`` inside F and ``seed_face_gap`` away from the face
+   and forehead -> definite hair (the seed of the hair colour model), the rest of F -> probable
+   hair; everything outside F -> definite background;
+5. GrabCut (colour GMMs) refines the labels above the chin line (pass 1);
+6. below the chin only the columns where pass-1 hair reaches the chin line are candidates
+   (hair hanging down; the body elsewhere is dropped); a second GrabCut, seeded with the pass-1
+   hair as definite hair, decides them (pass 2);
+7. the result is intersected with F, cleaned by a small morphological opening and restricted to
+   the connected components reaching above the brows.
 Output: (H, W) float32 mask in {0, 1}. Deterministic (OpenCV's RNG is seeded).
 """
 
@@ -35,6 +39,10 @@ class MaskConfig:
     """how far above the brows the head may reach, in face heights (foreground rectangle)."""
     head_width: float = 2.2
     """width of the foreground rectangle, in face widths."""
+    seed_border: float = 0.04
+    """definite-hair seed: at least this far (face widths) inside the foreground ..."""
+    seed_face_gap: float = 0.12
+    """... and at least this far (face widths) from the face and forehead."""
     below_chin: float = 1.0
     """how far below the chin the foreground rectangle reaches, in face heights."""
     iterations: int = 5
@@ -155,12 +163,33 @@ def hair_mask_fallback(image: np.ndarray, lmk: np.ndarray, alpha: np.ndarray | N
     chin_y = float(jaw[:, 1].max())
     below_chin = yy > chin_y
 
+    # seed: foreground above the chin, away from its border and away from the face -> hair
+    def disk(radius: float) -> np.ndarray:
+        r = max(1, int(round(radius)))
+        return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+
+    inner = cv2.erode(fg.astype(np.uint8), disk(cfg.seed_border * fw)).astype(bool)
+    near_face = cv2.dilate((face | forehead).astype(np.uint8), disk(cfg.seed_face_gap * fw)).astype(bool)
+    seed = inner & ~near_face & ~below_chin & ~neck
+
+    # pass 1: the head above the chin line
     labels = np.full((h, w), cv2.GC_BGD, np.uint8)
     labels[fg] = cv2.GC_PR_FGD
-    labels[fg & below_chin] = cv2.GC_PR_BGD
     labels[fg & forehead] = cv2.GC_PR_BGD
+    labels[seed] = cv2.GC_FGD
     labels[face | neck] = cv2.GC_BGD
-    hair = _grabcut(image, labels, cfg) & fg & ~face & ~neck
+    cut = int(np.clip(np.ceil(chin_y), 1, h))
+    hair = np.zeros((h, w), bool)
+    hair[:cut] = _grabcut(image[:cut], labels[:cut], cfg) & fg[:cut] & ~face[:cut] & ~neck[:cut]
+    # pass 2: hair hanging below the chin, in the columns where hair reaches the chin line
+    band = hair[max(0, int(chin_y - 0.15 * fh)):cut].any(axis=0)
+    cols = cv2.dilate(band.astype(np.uint8)[None], np.ones((1, 2 * max(1, int(0.05 * fw)) + 1), np.uint8))[0] > 0
+    cand = fg & below_chin & ~neck & cols[None, :]
+    if cand.any() and hair.any():
+        labels2 = np.full((h, w), cv2.GC_BGD, np.uint8)
+        labels2[:cut][hair[:cut]] = cv2.GC_FGD
+        labels2[cand] = cv2.GC_PR_FGD
+        hair |= _grabcut(image, labels2, cfg) & cand
 
     r = max(1, int(round(0.02 * fw)))
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))

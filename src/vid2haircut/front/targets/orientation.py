@@ -17,6 +17,7 @@ difference-of-Gaussians pre-filter with sigmas (0.4, 10).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -115,6 +116,19 @@ def _to_gray(image: np.ndarray) -> np.ndarray:
     return img
 
 
+@functools.lru_cache(maxsize=8)
+def _cached_bank(cfg: GaborConfig, device: str) -> tuple[torch.Tensor, torch.Tensor, float]:
+    kernels, angles = gabor_bank(cfg, device=device)
+    d0 = torch.remainder(angles - angles[0] + math.pi / 2, math.pi) - math.pi / 2
+    return kernels, angles, float((d0 * d0).sum())  # sum_i d_i^2 is the same for every winner
+
+
+def _bbox(mask: np.ndarray, pad: int) -> tuple[int, int, int, int]:
+    ys, xs = np.nonzero(mask)
+    h, w = mask.shape
+    return max(0, ys.min() - pad), min(h, ys.max() + pad + 1), max(0, xs.min() - pad), min(w, xs.max() + pad + 1)
+
+
 @torch.no_grad()
 def orientation_map(image: np.ndarray, mask: np.ndarray | None = None, cfg: GaborConfig = GaborConfig(),
                     device: torch.device | str | None = None) -> OrientationMap:
@@ -122,49 +136,65 @@ def orientation_map(image: np.ndarray, mask: np.ndarray | None = None, cfg: Gabo
 
     Args:
         image: (H, W, 3) uint8 RGB or (H, W) grayscale (uint8 or float in [0, 1]).
-        mask: optional (H, W) hair mask in [0, 1]; confidence is zeroed where mask < 0.5.
+        mask: optional (H, W) hair mask in [0, 1]; only its bounding box is filtered, and
+            confidence is zeroed where mask < 0.5 (angle there is 0).
         cfg: bank settings.
         device: torch device for the convolutions (default CPU).
     Returns:
         :class:`OrientationMap` with (H, W) float32 arrays (see the module docstring).
     """
     device = torch.device(device) if device is not None else torch.device("cpu")
-    gray = torch.from_numpy(_to_gray(image)).to(device)[None, None]
-    h, w = gray.shape[-2:]
-    pre = dog_filter(gray, cfg.dog_sigmas)
-    kernels, angles = gabor_bank(cfg, device=device)
-    r = kernels.shape[-1] // 2
-    mode = "reflect" if r < min(h, w) else "replicate"
-    padded = F.pad(pre, (r, r, r, r), mode=mode)
-    var_uniform = math.pi ** 2 / 12.0
-
-    angle = torch.empty(h, w, device=device)
-    conf = torch.empty(h, w, device=device)
-    energy = torch.empty(h, w, device=device)
-    t = max(16, int(cfg.tile))
-    for y0 in range(0, h, t):
-        for x0 in range(0, w, t):
-            y1, x1 = min(h, y0 + t), min(w, x0 + t)
-            patch = padded[:, :, y0:y1 + 2 * r, x0:x1 + 2 * r]
-            resp = F.conv2d(patch, kernels)[0].abs()  # (n, th, tw)
-            best_val, best = resp.max(dim=0)
-            a_hat = angles[best]  # (th, tw)
-            d = angles[:, None, None] - a_hat[None]
-            d = torch.remainder(d + math.pi / 2, math.pi) - math.pi / 2
-            wgt = resp - resp.min(dim=0, keepdim=True).values
-            var = (d * d * wgt).sum(0) / wgt.sum(0).clamp_min(1e-12)
-            angle[y0:y1, x0:x1] = a_hat
-            conf[y0:y1, x0:x1] = (1.0 - var / var_uniform).clamp(0.0, 1.0)
-            energy[y0:y1, x0:x1] = best_val
-    conf_np = conf.cpu().numpy().astype(np.float32)
+    gray_np = _to_gray(image)
+    h, w = gray_np.shape
+    angle_np = np.zeros((h, w), np.float32)
+    conf_np = np.zeros((h, w), np.float32)
+    energy_np = np.zeros((h, w), np.float32)
+    m = None
     if mask is not None:
-        m = np.asarray(mask, dtype=np.float32)
+        m = np.asarray(mask, dtype=np.float32) >= 0.5
         if m.shape != (h, w):
             raise ValueError(f"mask shape {m.shape} does not match image shape {(h, w)}")
-        conf_np = np.where(m >= 0.5, conf_np, 0.0).astype(np.float32)
-    ang = np.mod(angle.cpu().numpy().astype(np.float32), np.float32(math.pi))
-    ang[ang >= np.float32(math.pi)] = 0.0
-    return OrientationMap(ang, conf_np, energy.cpu().numpy().astype(np.float32))
+        if not m.any():
+            return OrientationMap(angle_np, conf_np, energy_np)
+    kernels, angles, sum_d2 = _cached_bank(cfg, str(device))
+    r = kernels.shape[-1] // 2
+    n = angles.numel()
+    # the DoG needs context: filter a box around the mask padded by the coarse sigma
+    y0, y1, x0, x1 = (0, h, 0, w) if m is None else _bbox(m, r + int(math.ceil(3 * max(cfg.dog_sigmas))))
+    gray = torch.from_numpy(np.ascontiguousarray(gray_np[y0:y1, x0:x1])).to(device)[None, None]
+    pre = dog_filter(gray, cfg.dog_sigmas)
+    # then only the mask's own box (plus the kernel radius) goes through the bank
+    by0, by1, bx0, bx1 = (0, h, 0, w) if m is None else _bbox(m, 0)
+    bh, bw = by1 - by0, bx1 - bx0
+    oy, ox = by0 - y0, bx0 - x0
+    ch, cw = pre.shape[-2:]
+    mode = "reflect" if r < min(ch, cw) else "replicate"
+    padded = F.pad(pre, (r, r, r, r), mode=mode)
+    var_uniform = math.pi ** 2 / 12.0
+    t = max(16, int(cfg.tile))
+    for ty in range(0, bh, t):
+        for tx in range(0, bw, t):
+            ty1, tx1 = min(bh, ty + t), min(bw, tx + t)
+            patch = padded[:, :, oy + ty:oy + ty1 + 2 * r, ox + tx:ox + tx1 + 2 * r]
+            resp = F.conv2d(patch, kernels)[0].abs_()  # (n, th, tw)
+            best_val, best = resp.max(dim=0)
+            low = resp.min(dim=0).values
+            total = resp.sum(dim=0)
+            d = angles[:, None, None] - angles[best][None]
+            d.add_(math.pi / 2).remainder_(math.pi).sub_(math.pi / 2).square_()
+            num = d.mul_(resp).sum(dim=0)
+            # variance with weights F_i = resp_i - min_j resp_j
+            var = (num - low * sum_d2) / (total - n * low).clamp_min(1e-12)
+            sl = (slice(by0 + ty, by0 + ty1), slice(bx0 + tx, bx0 + tx1))
+            angle_np[sl] = angles[best].cpu().numpy()
+            conf_np[sl] = (1.0 - var / var_uniform).clamp(0.0, 1.0).cpu().numpy()
+            energy_np[sl] = best_val.cpu().numpy()
+    if m is not None:
+        conf_np[~m] = 0.0
+        angle_np[~m] = 0.0
+    angle_np = np.mod(angle_np, np.float32(math.pi)).astype(np.float32)
+    angle_np[angle_np >= np.float32(math.pi)] = 0.0
+    return OrientationMap(angle_np, conf_np, energy_np)
 
 
 def angle_difference(a: np.ndarray, b: np.ndarray) -> np.ndarray:

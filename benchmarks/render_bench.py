@@ -1,0 +1,142 @@
+"""Benchmark of the strand renderer: forward and forward+backward time per frame.
+
+For 2k / 4k / 10k strands x 32 points at 256x256 and 512x512 it prints a Markdown table with the
+forward and forward+backward milliseconds per frame, the number of (Gaussian, pixel)
+contributions T the renderer evaluates, and the same machine's time for a plain ``scatter_add_``
+of T values into an image of that size (the bandwidth ceiling; the indices are the renderer's own
+pixel indices, so the memory access pattern is the same).
+
+Usage:
+    python benchmarks/render_bench.py [--quick] [--device cpu|cuda] [--threads N] [--compiled]
+
+The scene is a synthetic long-hair style on a 0.1 m scalp sphere seen from 0.6 m with a head
+occluder (the sphere's depth), hair filling most of the frame, as in the fitting stages.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+
+import numpy as np
+import torch
+
+from vid2haircut.camera import intrinsics_from_fov, look_at
+from vid2haircut.render import render_strands
+from vid2haircut.render.api import DEFAULT_ALPHA_MIN
+from vid2haircut.render.footprint import build_footprint
+from vid2haircut.render.gaussians import segment_gaussians
+
+
+def hair_scene(n_strands: int, n_points: int = 32, seed: int = 0) -> np.ndarray:
+    """[N, P, 3] strands: roots on the upper scalp, growing out then falling under gravity."""
+    rng = np.random.default_rng(seed)
+    radius = 0.1
+    theta = np.arccos(rng.uniform(-0.2, 1.0, n_strands))  # polar angle from +y (up)
+    phi = rng.uniform(0, 2 * np.pi, n_strands)
+    normal = np.stack([np.sin(theta) * np.cos(phi), np.cos(theta), np.sin(theta) * np.sin(phi)], -1)
+    roots = radius * normal
+    length = rng.uniform(0.15, 0.25, n_strands)
+    t = np.linspace(0, 1, n_points)[None, :, None]
+    seg = length[:, None, None] * t
+    out = normal[:, None] * np.minimum(seg, 0.03) * 1.0
+    fall = np.array([0.0, -1.0, 0.0]) * np.maximum(seg - 0.02, 0.0)
+    wave = 0.004 * np.sin(seg * 60 + phi[:, None, None]) * np.cross(normal, [0.0, 1.0, 0.0])[:, None]
+    return (roots[:, None] + out * 1.2 + fall + wave).astype(np.float32)
+
+
+def head_depth_sphere(K: np.ndarray, w2c: np.ndarray, width: int, height: int, radius: float = 0.1) -> np.ndarray:
+    """[H, W] camera depth of a sphere at the world origin (+inf off the sphere)."""
+    ys, xs = np.mgrid[0:height, 0:width].astype(np.float64)
+    rays = np.stack([(xs - K[0, 2]) / K[0, 0], (ys - K[1, 2]) / K[1, 1], np.ones_like(xs)], -1)
+    c = w2c[:3, 3]  # sphere centre in camera coordinates (world origin)
+    b = rays @ c
+    rr = (rays * rays).sum(-1)
+    disc = b * b - rr * (c @ c - radius * radius)
+    t = (b - np.sqrt(np.maximum(disc, 0))) / rr
+    return np.where(disc > 0, t, np.inf)  # z = t since the ray's z component is 1
+
+
+def setup(n_strands: int, size: int, frames: int, device: str):
+    pts = hair_scene(n_strands)
+    K = intrinsics_from_fov(size, size, 36.0)
+    E = look_at(np.array([0.0, -0.03, 0.6]), np.array([0.0, -0.04, 0.0]))
+    hd = head_depth_sphere(K, E, size, size)
+    f = lambda a: torch.tensor(np.repeat(a[None], frames, 0), dtype=torch.float32, device=device)  # noqa: E731
+    return f(pts), f(K), f(E), f(hd)
+
+
+def _sync(device: str) -> None:
+    if device.startswith("cuda"):
+        torch.cuda.synchronize()
+
+
+def best_ms(fn, device: str, repeat: int) -> float:
+    """Smallest wall time of ``repeat`` runs (after one warm-up), milliseconds."""
+    fn()
+    _sync(device)
+    best = math.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        _sync(device)
+        best = min(best, time.perf_counter() - t0)
+    return best * 1e3
+
+
+def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, compiled: bool = False) -> dict:
+    pts, K, E, hd = setup(n_strands, size, frames, device)
+    pts.requires_grad_(True)
+
+    def fwd():
+        with torch.no_grad():
+            render_strands(pts, K, E, size, size, head_depth=hd, compiled=compiled)
+
+    def fwd_bwd():
+        out = render_strands(pts, K, E, size, size, head_depth=hd, compiled=compiled)
+        loss = out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()
+        loss.backward()
+        pts.grad = None
+
+    with torch.no_grad():
+        g = segment_gaussians(pts, K, E)
+        G = g.depths.numel()
+        fp = build_footprint(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G),
+                             torch.arange(frames, device=device).repeat_interleave(g.depths.shape[1]),
+                             size, size, math.log(DEFAULT_ALPHA_MIN))
+    idx = fp.pix.reshape(-1)
+    vals = torch.rand(idx.shape[0], device=device)
+    img = torch.zeros(frames * (size + 2) ** 2, device=device)
+    scatter = best_ms(lambda: img.zero_().scatter_add_(0, idx, vals), device, repeat)
+    t_f = best_ms(fwd, device, repeat)
+    t_fb = best_ms(fwd_bwd, device, repeat)
+    return dict(strands=n_strands, size=size, segments=G // frames, T=idx.shape[0] // frames,
+                fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="4k strands at 256x256 only, 3 repeats")
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (CPU)")
+    ap.add_argument("--frames", type=int, default=1, help="frames per call (times are per frame)")
+    ap.add_argument("--compiled", action="store_true", help="use torch.compile'd element kernels")
+    args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    cases = [(4000, 256)] if args.quick else [(n, s) for s in (256, 512) for n in (2000, 4000, 10000)]
+    repeat = 3 if args.quick else 5
+    dev_name = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"CPU, {torch.get_num_threads()} threads"
+    print(f"device: {dev_name}; torch {torch.__version__}; frames per call: {args.frames}; compiled: {args.compiled}\n")
+    print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")
+    print("|---|---|---|---|---|---|---|---|")
+    for n, s in cases:
+        r = bench_case(n, s, args.device, repeat, args.frames, args.compiled)
+        print(f"| {n} | {s}x{s} | {r['segments']} | {r['T'] / 1e6:.2f} M | {r['fwd']:.1f} | {r['fwd_bwd']:.1f} | "
+              f"{r['scatter']:.1f} | {r['fwd_bwd'] / r['scatter']:.1f}x |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,140 @@
+"""Public functional API of the strand renderer: :func:`render_strands`.
+
+Pipeline: strand points -> one 2D Gaussian per segment (:mod:`.gaussians`, EWA projection) ->
+sheared tile footprints (:mod:`.footprint`) -> order-independent compositing into pixel sums
+(:mod:`.raster`, :mod:`.kernels`) -> image channels (here).
+
+Accuracy against the exact per-pixel front-to-back reference (tests/render_reference.py) is
+documented in :mod:`vid2haircut.render.raster` and checked by tests/test_render.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from vid2haircut.render.footprint import build_footprint
+from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, segment_gaussians
+from vid2haircut.render.kernels import KernelConsts
+from vid2haircut.render.raster import composite
+from vid2haircut.render.types import PixelSums, StrandRender
+
+DEFAULT_ALPHA_MIN = math.exp(-4.5)
+"""Contributions below this alpha are dropped (the ellipse is cut at 3 standard deviations)."""
+
+
+def render_strands(
+    points: Tensor,  # [B, N, P, 3] world
+    K: Tensor,  # [B, 3, 3]
+    world_2_cam: Tensor,  # [B, 4, 4]
+    width: int,
+    height: int,
+    strand_width: float = DEFAULT_STRAND_WIDTH,
+    head_depth: Tensor | None = None,  # [B, H, W]
+    *,
+    opacity: float = 1.0,
+    dilation: float = DEFAULT_DILATION,
+    alpha_min: float = DEFAULT_ALPHA_MIN,
+    alpha_max: float = 0.99,
+    depth_bin: float = 1e-3,
+    bins: int = 32,
+    vis_weight: float = 0.3,
+    near: float = 1e-2,
+    shading: bool = True,
+    compiled: bool = False,
+) -> StrandRender:
+    """Render strands as strand-aligned Gaussians to silhouette, direction and depth maps.
+
+    Differentiable w.r.t. ``points`` through silhouette, direction and depth. Runs on the device
+    of ``points`` (CPU or CUDA); all frames are rendered in one call.
+
+    Args:
+        points: [B, N, P, 3] strand points in world space (metres), P >= 2; one set per frame
+            (frames may differ because hair moves). N and P may change from call to call.
+        K: [B, 3, 3] intrinsics; world_2_cam: [B, 4, 4] extrinsics (OpenCV: x right, y down,
+            z forward; pixel centres at integer coordinates, row = y, column = x).
+        width, height: image size in pixels.
+        strand_width: short-axis size of each 3D Gaussian (metres; default 0.35 mm).
+        head_depth: optional [B, H, W] camera z of the head surface, +inf where there is no head
+            (e.g. from :func:`vid2haircut.render.mesh_depth.mesh_depth`); hair behind it is hidden.
+        opacity: peak opacity of each Gaussian (default 1).
+        dilation: screen-space covariance dilation in px^2 (anti-aliasing; default 0.3).
+        alpha_min: contributions with alpha below it are dropped (default exp(-4.5): 3 sigma).
+        alpha_max: alpha is clamped to it so that log(1 - alpha) stays finite (default 0.99).
+        depth_bin, bins: depth compositing resolution: per pixel, contributions are ordered in
+            ``bins`` bins of ``depth_bin`` metres from the nearest one (default 32 x 1 mm; see
+            :mod:`vid2haircut.render.raster`).
+        vis_weight: a segment is visible when its compositing weight reaches this at some pixel.
+        near: segments closer than this (metres) are not drawn.
+        shading: False renders the silhouette only (much faster); depth, direction and
+            visibility are then zeros / False.
+        compiled: run the element kernels through ``torch.compile`` (first call compiles).
+
+    Returns:
+        :class:`StrandRender` (see its field docs for shapes and empty-pixel values).
+
+    Example:
+        >>> import torch
+        >>> pts = torch.tensor([[[[-0.02, 0.0, 0.5], [0.0, 0.0, 0.5], [0.02, 0.0, 0.5]]]])
+        >>> K = torch.tensor([[[400.0, 0, 31.5], [0, 400.0, 31.5], [0, 0, 1]]])
+        >>> out = render_strands(pts, K, torch.eye(4)[None], 64, 64)
+        >>> out.silhouette.shape, bool(out.mask[0, 31, 31]), round(float(out.angle[0, 31, 31]), 3)
+        (torch.Size([1, 64, 64]), True, 0.0)
+    """
+    if width <= 0 or height <= 0:
+        raise ValueError(f"image size must be positive, got {width} x {height}")
+    if not 0.0 < opacity <= 1.0 or not 0.0 < alpha_min < min(opacity, alpha_max) or not alpha_max < 1.0:
+        raise ValueError(f"need 0 < alpha_min < min(opacity, alpha_max) and alpha_max < 1, got "
+                         f"alpha_min={alpha_min}, opacity={opacity}, alpha_max={alpha_max}")
+    if depth_bin <= 0 or bins < 1:
+        raise ValueError(f"need depth_bin > 0 and bins >= 1, got depth_bin={depth_bin}, bins={bins}")
+    B, N, P = points.shape[0], points.shape[1], points.shape[2]
+    if head_depth is not None and head_depth.shape != (B, height, width):
+        raise ValueError(f"head_depth must have shape ({B}, {height}, {width}), got {tuple(head_depth.shape)}")
+    K = torch.as_tensor(K, device=points.device)
+    world_2_cam = torch.as_tensor(world_2_cam, device=points.device)
+    g = segment_gaussians(points, K, world_2_cam, strand_width, dilation, near)
+    S = g.depths.shape[1]
+    G = B * S
+    frame = torch.arange(B, device=points.device).repeat_interleave(S)
+    log_op = math.log(opacity)
+    fp = build_footprint(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame,
+                         height, width, math.log(alpha_min) - log_op)
+    consts = KernelConsts(math.log(alpha_min), alpha_max, depth_bin, int(bins), vis_weight, shading)
+    sums, visible = composite(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G),
+                              g.dirs.reshape(G, 2), fp, B, height, width, consts, log_op, head_depth, compiled)
+    return _finish(sums, visible.reshape(B, N, P - 1), g)
+
+
+def _finish(sums: PixelSums, visibility: Tensor, g) -> StrandRender:
+    """Pixel sums -> image channels."""
+    silhouette = sums.weight
+    weight = sums.weight
+    filled = weight > 1e-12
+    safe_w = torch.where(filled, weight, torch.ones_like(weight))
+    depth = torch.where(filled, sums.depth / safe_w, torch.zeros_like(weight))
+    norm2 = (sums.dirs * sums.dirs).sum(-1)
+    has_dir = norm2 > 1e-20
+    inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, torch.ones_like(norm2))), torch.zeros_like(norm2))
+    direction = sums.dirs * inv[..., None]
+    angle = torch.remainder(0.5 * torch.atan2(direction[..., 1], direction[..., 0]), math.pi).detach()
+    angle = torch.where(has_dir & (angle < math.pi - 1e-6), angle, torch.zeros_like(angle))
+    mask = (silhouette > 0.5) & filled
+    depth_normalized = normalize_depth(depth, mask)
+    return StrandRender(silhouette, direction, angle, depth, depth_normalized, mask, visibility, g)
+
+
+def normalize_depth(depth: Tensor, mask: Tensor) -> Tensor:
+    """Min-max normalise [B, H, W] depth to [0, 1] inside the [B, H, W] bool mask per frame; 0 outside.
+
+    Differentiable (the gradient reaches the pixels holding the minimum and maximum too).
+    """
+    big = torch.finfo(depth.dtype).max
+    dmin = torch.where(mask, depth, torch.full_like(depth, big)).amin((1, 2), keepdim=True)
+    dmax = torch.where(mask, depth, torch.full_like(depth, -big)).amax((1, 2), keepdim=True)
+    any_ = mask.any((1, 2), keepdim=True)
+    dmin = torch.where(any_, dmin, torch.zeros_like(dmin))
+    span = torch.where(any_, dmax - dmin, torch.ones_like(dmax)).clamp_min(1e-8)
+    return torch.where(mask, (depth - dmin) / span, torch.zeros_like(depth))

@@ -1,0 +1,123 @@
+"""Pixel footprints of screen-space Gaussians: sheared fixed-size tiles (no gradients).
+
+A Gaussian contributes to pixel p only where its power -m/2 (m the squared Mahalanobis distance)
+is at least ``power_min`` (alpha >= alpha_min), i.e. inside the ellipse m <= c^2, c^2 = -2 power_min.
+Strand Gaussians are long and thin and mostly not axis aligned, so a square window around the
+centre would be mostly empty. Instead each Gaussian is walked along its major image axis u
+(one pixel column at a time) and, per column, only a short run of ``rows`` pixels along the other
+axis v is visited, starting where the ellipse begins in that column (the run follows the slope of
+the ellipse). Runs of ``cols`` columns form one fixed-size tile, so every later step is a dense
+[tiles, cols, rows] tensor operation with per-tile parameters broadcast instead of gathered.
+
+The window provably contains the whole ellipse: in column u the ellipse spans
+v in [v_c(u) - h, v_c(u) + h] with v_c(u) = mu_v + (s_uv / s_uu)(u - mu_u) and
+h <= c sqrt(det / s_uu), which holds at most floor(2h) + 1 integers; columns with
+|u - mu_u| > c sqrt(s_uu) lie outside. Pixels outside the image are clamped onto a one-pixel
+border ring of the padded pixel buffer, which is cropped away after compositing.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from vid2haircut.render.types import Footprint
+
+
+COLUMN_COST = 3.0
+"""Cost of one tile column's own bookkeeping, in units of one pixel element (measured, CPU)."""
+
+
+def _choose_rows(ncol_tiles: Tensor, need: Tensor, max_rows: int) -> int:
+    """Tile height R in 1..max_rows minimising sum_g ncol_tiles_g * ceil(need_g / R) * (R + COLUMN_COST)."""
+    if need.numel() == 0:
+        return 1
+    cand = torch.arange(1, max_rows + 1, device=need.device, dtype=torch.float64)
+    n = need.to(torch.float64)[:, None]
+    cost = (ncol_tiles.to(torch.float64)[:, None] * torch.ceil(n / cand) * (cand + COLUMN_COST)).sum(0)
+    return int(torch.argmin(cost).item()) + 1
+
+
+@torch.no_grad()
+def build_footprint(
+    means: Tensor,  # [G, 2]
+    covs: Tensor,  # [G, 3]
+    valid: Tensor,  # [G]
+    frame: Tensor,  # [G] int64
+    height: int,
+    width: int,
+    power_min: float,
+    cols: int = 4,
+    max_rows: int = 8,
+) -> Footprint:
+    """Tile layout of the pixels each Gaussian can touch.
+
+    Args:
+        means: [G, 2] pixel centres (x, y). covs: [G, 3] covariances (xx, xy, yy), px^2.
+        valid: [G] bool; invalid Gaussians get no tile.
+        frame: [G] frame index of each Gaussian (selects the image in the padded buffer).
+        height, width: image size.
+        power_min: log(alpha_min / opacity) < 0; the ellipse drawn is -m/2 >= power_min.
+        cols: tile width in columns; max_rows: largest tile height tried.
+
+    Returns:
+        :class:`Footprint`; ``pix`` indexes a flat buffer of B * (height + 2) * (width + 2) pixels.
+    """
+    if power_min >= 0:
+        raise ValueError(f"power_min must be negative (alpha_min < opacity), got {power_min}")
+    dev = means.device
+    means = means.detach().to(torch.float32)
+    covs = covs.detach().to(torch.float32)
+    c2 = -2.0 * power_min
+    sxx, sxy, syy = covs.unbind(-1)
+    hz = sxx >= syy
+    mu = torch.where(hz, means[:, 0], means[:, 1])
+    mv = torch.where(hz, means[:, 1], means[:, 0])
+    suu = torch.where(hz, sxx, syy)
+    svv = torch.where(hz, syy, sxx)
+    size_u = torch.where(hz, width, height).to(torch.float32)
+    size_v = torch.where(hz, height, width).to(torch.float32)
+
+    eu = torch.sqrt(c2 * suu)
+    ev = torch.sqrt(c2 * svv)
+    u_lo = torch.ceil(mu - eu).clamp_min(0.0)
+    u_hi = torch.minimum(torch.floor(mu + eu), size_u - 1.0)
+    on_image = (mv + ev >= 0) & (mv - ev <= size_v - 1.0)
+    ok = valid & on_image & torch.isfinite(mu) & torch.isfinite(eu) & torch.isfinite(ev)
+    ncol = torch.where(ok, (u_hi - u_lo + 1.0).clamp_min(0.0), torch.zeros_like(u_lo))
+    slope = sxy / suu
+    det = (suu * svv - sxy * sxy).clamp_min(1e-12)
+    half = torch.sqrt(c2 * det / suu)
+    need = torch.floor(2.0 * half) + 1.0
+
+    ntu = torch.ceil(ncol / cols).to(torch.int64)
+    need_i = torch.where(ntu > 0, need, torch.ones_like(need)).to(torch.int64)
+    rows = _choose_rows(ntu[ntu > 0], need_i[ntu > 0], max_rows)
+    ntv = (need_i + rows - 1) // rows
+    ntile = ntu * ntv
+
+    tile_gauss = torch.repeat_interleave(torch.arange(means.shape[0], device=dev), ntile)
+    start = torch.cumsum(ntile, 0) - ntile
+    local = torch.arange(tile_gauss.shape[0], device=dev) - start[tile_gauss]
+    ntv_t = ntv[tile_gauss]
+    cu = local // ntv_t
+    cv = local - cu * ntv_t
+
+    g = tile_gauss
+    col = torch.arange(cols, device=dev, dtype=torch.float32)
+    u = u_lo[g, None] + (cu * cols).to(torch.float32)[:, None] + col  # [nt, cols]
+    vc = mv[g, None] + slope[g, None] * (u - mu[g, None])
+    vstart = torch.ceil(vc - half[g, None]) + (cv * rows).to(torch.float32)[:, None]
+
+    su_size = size_u[g].to(torch.int64)
+    sv_size = size_v[g].to(torch.int64)
+    ui = torch.minimum(u.to(torch.int64), su_size[:, None])  # u >= 0 already
+    vi = vstart.to(torch.int64)[:, :, None] + torch.arange(rows, device=dev)
+    vi = torch.clamp(vi, min=torch.full((), -1, device=dev), max=sv_size[:, None, None])
+    hz_t = hz[g]
+    stride_row = width + 2
+    stride_u = torch.where(hz_t, 1, stride_row)
+    stride_v = torch.where(hz_t, stride_row, 1)
+    base = frame[g] * ((height + 2) * stride_row) + stride_row + 1  # pixel (0, 0) of the frame
+    pix = (base[:, None] + ui * stride_u[:, None])[:, :, None] + vi * stride_v[:, None, None]
+    return Footprint(tile_gauss, u, vstart, pix, hz, rows, cols)

@@ -1,0 +1,139 @@
+"""Fast compositing of screen-space strand Gaussians into pixel sums (custom autograd Function).
+
+Compositing model (checked against the exact per-pixel sorted reference in
+``tests/render_reference.py``):
+
+* Silhouette: 1 - prod_i (1 - alpha_i) = 1 - exp(sum_i log(1 - alpha_i)) is order independent,
+  so it is exact (float32 round-off only).
+* Depth and direction: depth-binned front-to-back compositing. Sorting every (Gaussian, pixel)
+  contribution by depth would cost more than the whole rest of the renderer on a CPU. Instead,
+  per pixel, contributions fall into ``bins`` depth bins of ``depth_bin`` metres (default
+  32 x 1 mm) counted from the nearest contribution at that pixel; log(1 - alpha) is summed per
+  (pixel, bin), an exclusive cumulative sum over bins gives the transmittance in front of each
+  bin, and a contribution's weight is that transmittance times its share of its bin's absorbed
+  opacity (see :mod:`vid2haircut.render.kernels`). This equals exact front-to-back compositing
+  whenever no two contributions at a pixel lie within the same millimetre bin; inside one bin
+  the order is treated as unknown and the bin's opacity is shared in proportion to
+  -log(1 - alpha). Hair more than bins * depth_bin behind the nearest contribution shares the
+  last bin. The weights sum exactly to the silhouette. Gradients are exact for this function
+  (the bin assignment, like a depth sort, is piecewise constant and carries no gradient).
+  Depth = sum w z / sum w, direction = normalise(sum w (cos 2a, sin 2a)).
+  Measured error against the exact reference on random tiny scenes (24 x 24 px, 6 strands
+  crossing at mm depth spacing, inside the mask): depth mean ~0.03 mm (p95 ~0.1 mm), direction
+  L1 mean ~0.06 (p95 ~0.3, on doubled-angle unit vectors), silhouette < 1e-6.
+* Visibility: a segment is visible when its compositing weight reaches ``vis_weight``
+  (default 0.3) at some pixel, i.e. it is a substantial part of what the camera sees there.
+* Head occluder: a contribution whose Gaussian depth is not in front of the head depth at that
+  pixel has alpha 0 (it adds nothing to any channel; not differentiable w.r.t. the head).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from vid2haircut.render import kernels
+from vid2haircut.render.gaussians import conics
+from vid2haircut.render.kernels import KernelConsts
+from vid2haircut.render.types import Footprint, PixelSums
+
+
+class _Composite(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, A0, B0, dyc, Cq, z, c, s, pix, head, ring, npix, consts, fwd, bwd):
+        sums, visible, saved = fwd(A0, B0, dyc, Cq, z, c, s, pix, head, ring, npix, consts)
+        ctx.save_for_backward(B0, Cq, z, c, s, pix, ring, *saved)
+        ctx.npix, ctx.consts, ctx.bwd = npix, consts, bwd
+        if visible is None:
+            visible = torch.zeros(A0.shape[0], dtype=torch.bool, device=A0.device)
+        ctx.mark_non_differentiable(visible)
+        return sums, visible
+
+    @staticmethod
+    def backward(ctx, grad, _g_vis):
+        B0, Cq, z, c, s, pix, ring, *saved = ctx.saved_tensors
+        out = ctx.bwd(grad.contiguous(), B0, Cq, z, c, s, pix, ring, tuple(saved), ctx.npix, ctx.consts)
+        return (*out, None, None, None, None, None, None, None)
+
+
+def padded_ring(batch: int, height: int, width: int, device) -> Tensor:
+    """[B * (H + 2) * (W + 2)] bool mask of the one-pixel padding ring."""
+    ring = torch.ones(batch, height + 2, width + 2, dtype=torch.bool, device=device)
+    ring[:, 1:-1, 1:-1] = False
+    return ring.reshape(-1)
+
+
+def pad_head_depth(head_depth: Tensor, dtype) -> Tensor:
+    """[B, H, W] head depth (+inf where no head) -> flat padded [B * (H + 2) * (W + 2)]."""
+    return torch.nn.functional.pad(head_depth.to(dtype), (1, 1, 1, 1), value=float("inf")).reshape(-1)
+
+
+def composite(
+    means: Tensor,  # [G, 2]
+    covs: Tensor,  # [G, 3]
+    depths: Tensor,  # [G]
+    dirs: Tensor,  # [G, 2]
+    fp: Footprint,
+    batch: int,
+    height: int,
+    width: int,
+    consts: KernelConsts,
+    log_opacity: float = 0.0,
+    head_depth: Tensor | None = None,  # [B, H, W]
+    compiled: bool = False,
+) -> tuple[PixelSums, Tensor]:
+    """Composite G Gaussians (flattened over frames) into per-pixel sums.
+
+    Args:
+        means, covs, depths, dirs: the flattened fields of :class:`Gaussians2D` ([G, ...]).
+        fp: footprint from :func:`vid2haircut.render.footprint.build_footprint`.
+        consts: kernel settings. log_opacity: log of the Gaussian peak opacity.
+        head_depth: optional [B, H, W] camera z of the head (+inf where no head).
+        compiled: run the element kernels through ``torch.compile`` (first call compiles).
+
+    Returns:
+        (:class:`PixelSums` with [B, H, W] fields, visible [G] bool).
+    """
+    G = means.shape[0]
+    dt = means.dtype
+    dev = means.device
+    qxx, qxy, qyy = conics(covs)
+    hz = fp.horizontal
+    mu = torch.where(hz, means[:, 0], means[:, 1])
+    mv = torch.where(hz, means[:, 1], means[:, 0])
+    quu = torch.where(hz, qxx, qyy)
+    qvv = torch.where(hz, qyy, qxx)
+    tg = fp.tile_gauss
+    du = fp.u.to(dt) - mu[tg, None]
+    dyc = fp.vstart.to(dt) - mv[tg, None]
+    A0 = -0.5 * quu[tg, None] * du * du + log_opacity
+    B0 = -qxy[tg, None] * du
+    Cq = -0.5 * qvv[tg]
+    z, c, s = depths[tg], dirs[tg, 0], dirs[tg, 1]
+
+    npix = batch * (height + 2) * (width + 2)
+    ring = padded_ring(batch, height, width, dev)
+    head = None if head_depth is None else pad_head_depth(head_depth, dt)
+    fwd, bwd = _compiled() if compiled else (kernels.forward_kernel, kernels.backward_kernel)
+    sums, vis_tile = _Composite.apply(A0, B0, dyc, Cq, z, c, s, fp.pix, head, ring, npix, consts, fwd, bwd)
+    sums = sums.reshape(batch, height + 2, width + 2, -1)[:, 1:-1, 1:-1]
+    log_t = sums[..., 0]
+    weight = -torch.expm1(log_t)
+    visible = torch.zeros(G, dtype=torch.bool, device=dev)
+    if not consts.shading:
+        zeros = torch.zeros_like(log_t)
+        return PixelSums(log_t, weight, zeros, torch.stack([zeros, zeros], -1)), visible
+    visible[tg[vis_tile]] = True
+    return PixelSums(log_t, weight, sums[..., 1], sums[..., 2:4]), visible
+
+
+_COMPILED: tuple | None = None
+
+
+def _compiled():
+    """The element kernels wrapped in ``torch.compile`` (dynamic shapes), built once."""
+    global _COMPILED
+    if _COMPILED is None:
+        _COMPILED = (torch.compile(kernels.forward_kernel, dynamic=True),
+                     torch.compile(kernels.backward_kernel, dynamic=True))
+    return _COMPILED
