@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +10,7 @@ import pytest
 from vid2haircut.camera import Camera, look_at
 from vid2haircut.geometry import axis_angle_to_matrix, make_transform
 from vid2haircut.io.sequence import open_sequence
-from vid2haircut.synth.motion import MotionParams, moved_strands, sway_points, world_from_head
+from vid2haircut.synth.motion import MotionParams, moved_strands, sway_points
 from vid2haircut.synth.photo import PhotoStyle, render_photo
 from vid2haircut.synth.photo_raster import rasterize_mesh
 from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
@@ -96,22 +94,28 @@ def test_landmarks_match_projected_head_landmarks(seq, head) -> None:
         np.testing.assert_allclose(lmk[i], uv, atol=1e-3)
 
 
-def test_landmark_noise_is_applied(tmp_path: Path) -> None:
-    from vid2haircut.synth.sequence import make_camera  # noqa: F401  (import check)
-
-    cfg = replace(CFG, n_frames=2, n_strands=50, n_points=8, landmark_noise_px=2.0, save_frame_points=False)
-    synthesize_sequence(tmp_path, "s", "N", cfg)
-    noisy = open_sequence(tmp_path, "s", "N")
-    _, lmk, _ = noisy.landmarks()
-    tr = noisy.tracking()
+def test_cli_writes_noisy_landmarks_and_refuses_to_overwrite(tmp_path: Path) -> None:
+    from vid2haircut.cli import main
     from vid2haircut.head import get_head
 
+    args = ["synthesize", "--root", str(tmp_path), "--subject", "s", "--seq", "N", "--family", "bob",
+            "--seed", "1", "--frames", "2", "--size", "64", "--strands", "50", "--points", "8",
+            "--landmark-noise", "2.0"]
+    assert main(args) == 0
+    noisy = open_sequence(tmp_path, "s", "N")
+    assert noisy.meta()["family"] == "bob" and noisy.meta()["landmark_noise_px"] == 2.0
+    assert (noisy.root / "images" / f"cam_{SERIAL}" / "frame_00001.jpg").is_file()  # jpg by default
+    _, lmk, _ = noisy.landmarks()
+    tr = noisy.tracking()
     pose = make_transform(axis_angle_to_matrix(tr["rotation"][1]), tr["translation"][1])
     uv, _ = noisy.camera.project(get_head().landmarks.astype(np.float64) @ pose[:3, :3].T + pose[:3, 3])
-    err = lmk[1] - uv
-    assert 1.0 < err.std() < 3.0
+    assert 1.0 < (lmk[1] - uv).std() < 3.0
     with np.load(noisy.ground_truth_strands_path) as z:
         assert not any(k.startswith("frame_points_") for k in z.files)  # off unless asked
+    before = (noisy.root / "ground_truth" / "meta.json").read_bytes()
+    assert main(args) == 2  # exists: refused, nothing touched
+    assert (noisy.root / "ground_truth" / "meta.json").read_bytes() == before
+    assert main(["synthesize", "--subject", "s"]) == 2  # --root/--seq missing
 
 
 def test_hair_mask_inside_alpha_and_depth_normalised(seq) -> None:
@@ -225,10 +229,3 @@ def test_contact_sheet(tmp_path: Path) -> None:
     out = contact_sheet(tmp_path / "sheet.png", families=["buzz", "bob"], n_strands=200, n_points=16, size=48)
     img = cv2.imread(str(out))
     assert img.shape == (48, 2 * 2 * 48, 3)
-
-
-def test_cli_requires_root(tmp_path: Path) -> None:
-    from vid2haircut.cli import main
-
-    assert main(["synthesize", "--subject", "s"]) == 2
-    assert json.dumps(CFG.__dict__)  # config is JSON-able

@@ -12,8 +12,8 @@ the ellipse). Runs of ``cols`` columns form one fixed-size tile, so every later 
 The window provably contains the whole ellipse: in column u the ellipse spans
 v in [v_c(u) - h, v_c(u) + h] with v_c(u) = mu_v + (s_uv / s_uu)(u - mu_u) and
 h <= c sqrt(det / s_uu), which holds at most floor(2h) + 1 integers; columns with
-|u - mu_u| > c sqrt(s_uu) lie outside. Pixels outside the image are clamped onto a one-pixel
-border ring of the padded pixel buffer, which is cropped away after compositing.
+|u - mu_u| > c sqrt(s_uu) lie outside. Pixels outside the image land in the padding, which is
+cropped away after compositing.
 """
 
 from __future__ import annotations
@@ -109,15 +109,16 @@ def build_footprint(
     vc = mv[g, None] + slope[g, None] * (u - mu[g, None])
     vstart = torch.ceil(vc - half[g, None]) + (cv * rows).to(torch.float32)[:, None]
 
-    su_size = size_u[g].to(torch.int64)
-    sv_size = size_v[g].to(torch.int64)
-    ui = torch.minimum(u.to(torch.int64), su_size[:, None])  # u >= 0 already
-    vi = vstart.to(torch.int64)[:, :, None] + torch.arange(rows, device=dev)
-    vi = torch.clamp(vi, min=torch.full((), -1, device=dev), max=sv_size[:, None, None])
+    pad = max(rows, cols) + 1
+    # Windows that start more than ``pad`` off the image lie wholly off it; clamping them keeps
+    # every index inside the padded buffer without per-pixel bounds checks.
+    vstart = torch.minimum(vstart.clamp_min(-float(pad)), size_v[g, None] + float(pad - rows))
     hz_t = hz[g]
-    stride_row = width + 2
+    stride_row = width + 2 * pad
     stride_u = torch.where(hz_t, 1, stride_row)
     stride_v = torch.where(hz_t, stride_row, 1)
-    base = frame[g] * ((height + 2) * stride_row) + stride_row + 1  # pixel (0, 0) of the frame
-    pix = (base[:, None] + ui * stride_u[:, None])[:, :, None] + vi * stride_v[:, None, None]
-    return Footprint(tile_gauss, u, vstart, pix, hz, rows, cols)
+    base = frame[g] * ((height + 2 * pad) * stride_row) + pad * (stride_row + 1)  # pixel (0, 0)
+    colbase = base[:, None] + u.to(torch.int64) * stride_u[:, None] + vstart.to(torch.int64) * stride_v[:, None]
+    rowoff = torch.arange(rows, device=dev) * stride_v[:, None]  # [nt, rows]
+    pix = colbase[:, :, None] + rowoff[:, None, :]
+    return Footprint(tile_gauss, u, vstart, pix, hz, rows, cols, pad)

@@ -29,6 +29,7 @@ class KernelConsts(NamedTuple):
     """Scalar settings of the element kernels."""
 
     log_alpha_min: float
+    alpha_min: float
     alpha_max: float
     depth_bin: float  # metres
     bins: int
@@ -37,19 +38,20 @@ class KernelConsts(NamedTuple):
 
 
 def _alpha(A0: Tensor, B0: Tensor, dyc: Tensor, Cq: Tensor, z: Tensor, pix: Tensor, head: Tensor | None,
-           k: KernelConsts) -> tuple[Tensor, Tensor, Tensor]:
-    """-> (dy, alpha, d alpha / d power) each [nt, cols, rows]."""
+           k: KernelConsts) -> tuple[Tensor, Tensor]:
+    """-> (dy, alpha), each [nt, cols, rows]."""
     r = torch.arange(pix.shape[2], device=dyc.device, dtype=dyc.dtype)
     dy = dyc[:, :, None] + r
     power = A0[:, :, None] + dy * (B0[:, :, None] + Cq[:, None, None] * dy)
-    keep = power >= k.log_alpha_min
     if head is not None:
-        keep &= z[:, None, None] < head[pix]
-    ex = torch.exp(power)
-    zero = torch.zeros((), dtype=ex.dtype, device=ex.device)
-    alpha = torch.where(keep, ex.clamp_max(k.alpha_max), zero)
-    dalpha = torch.where(keep & (ex < k.alpha_max), ex, zero)
-    return dy, alpha, dalpha
+        power.masked_fill_(z[:, None, None] >= head[pix], float("-inf"))
+    alpha = torch.exp(power).clamp_max_(k.alpha_max)
+    return dy, torch.nn.functional.threshold(alpha, k.alpha_min, 0.0)
+
+
+def _dalpha(alpha: Tensor, k: KernelConsts) -> Tensor:
+    """d alpha / d power: alpha where it is neither clamped nor dropped, else 0."""
+    return torch.where(alpha < k.alpha_max, alpha, torch.zeros((), dtype=alpha.dtype, device=alpha.device))
 
 
 def _bin_factor(Lb: Tensor) -> tuple[Tensor, Tensor]:
@@ -70,47 +72,49 @@ def _bin_tables(Lb: Tensor) -> tuple[Tensor, Tensor, Tensor]:
 
 
 def forward_kernel(A0: Tensor, B0: Tensor, dyc: Tensor, Cq: Tensor, z: Tensor, c: Tensor, s: Tensor,
-                   pix: Tensor, head: Tensor | None, ring: Tensor, npix: int, k: KernelConsts):
+                   pix: Tensor, head: Tensor | None, border: Tensor, npix: int, k: KernelConsts):
     """Composite all contributions into pixel sums.
 
     Args:
         A0, B0, dyc: [nt, cols] column terms. Cq, z, c, s: [nt] tile terms.
         pix: [nt, cols, rows] int64 pixel index. head: [npix] head depth (+inf: none) or None.
-        ring: [npix] bool, True on the padding ring. npix: padded pixel count.
+        border: [npix] bool, True on the image padding. npix: padded pixel count.
 
     Returns:
         (sums [npix, 4] (or [npix, 1] without shading), visible_tile [nt] bool or None, saved).
     """
-    dy, alpha, dalpha = _alpha(A0, B0, dyc, Cq, z, pix, head, k)
+    dy, alpha = _alpha(A0, B0, dyc, Cq, z, pix, head, k)
     flat = pix.reshape(-1)
-    la = torch.log1p(-alpha)
+    nla = torch.log1p(alpha.neg()).neg_()  # -log(1 - alpha) >= 0
     if not k.shading:
         sums = torch.zeros(npix, 1, dtype=alpha.dtype, device=alpha.device)
-        sums[:, 0].scatter_add_(0, flat, la.reshape(-1))
-        return sums, None, (dy, alpha, dalpha)
+        sums[:, 0].scatter_add_(0, flat, nla.reshape(-1)).neg_()
+        return sums, None, (dy, alpha)
     z3 = z[:, None, None]
-    inf = torch.full((), float("inf"), dtype=alpha.dtype, device=alpha.device)
+    # z_ref(p): nearest Gaussian whose window covers p (a lower bound of every contributing z)
+    zs = z * (1.0 / k.depth_bin)
     zref = torch.full((npix,), float("inf"), dtype=alpha.dtype, device=alpha.device)
-    zref.scatter_reduce_(0, flat, torch.where(alpha > 0, z3, inf).reshape(-1), "amin")
-    binf = ((z3 - zref[pix]) * (1.0 / k.depth_bin)).clamp_(0.0, k.bins - 1.0)
+    zref.scatter_reduce_(0, flat, zs[:, None, None].expand_as(alpha).reshape(-1), "amin")
+    binf = (zs[:, None, None] - zref[pix]).clamp_(0.0, k.bins - 1.0)
     pb = pix * k.bins + binf.to(torch.int64)  # index into the [npix, bins] table
     Lb = torch.zeros(npix * k.bins, dtype=alpha.dtype, device=alpha.device)
-    Lb.scatter_add_(0, pb.reshape(-1), la.reshape(-1))
-    Lb = Lb.reshape(npix, k.bins)
+    Lb.scatter_add_(0, pb.reshape(-1), nla.reshape(-1))
+    Lb = Lb.reshape(npix, k.bins).neg_()
     ELx, F, _ = _bin_tables(Lb)
-    M = (ELx * F).masked_fill_(ring[:, None], 0.0)
+    M = (ELx * F).masked_fill_(border[:, None], 0.0)
     Mel = M.reshape(-1)[pb]
-    w = Mel * (-la)
-    vals = torch.stack([w * z3, w * c[:, None, None], w * s[:, None, None]], dim=-1)
-    sums = torch.zeros(npix, 4, dtype=alpha.dtype, device=alpha.device)
-    sums[:, 0] = Lb.sum(1)
-    sums[:, 1:].index_add_(0, flat, vals.reshape(-1, 3))
+    w = Mel * nla
+    sums = torch.zeros(4, npix, dtype=alpha.dtype, device=alpha.device)
+    sums[0] = Lb.sum(1)
+    sums[1].scatter_add_(0, flat, (w * z3).reshape(-1))
+    sums[2].scatter_add_(0, flat, (w * c[:, None, None]).reshape(-1))
+    sums[3].scatter_add_(0, flat, (w * s[:, None, None]).reshape(-1))
     visible = (w >= k.vis_weight).flatten(1).any(1)
-    return sums, visible, (dy, alpha, dalpha, la, Mel, pb, Lb)
+    return sums.t(), visible, (dy, alpha, nla, Mel, pb, Lb)
 
 
 def backward_kernel(grad: Tensor, B0: Tensor, Cq: Tensor, z: Tensor, c: Tensor, s: Tensor, pix: Tensor,
-                    ring: Tensor, saved: tuple, npix: int, k: KernelConsts):
+                    border: Tensor, saved: tuple, npix: int, k: KernelConsts):
     """Gradients of the pixel sums w.r.t. the kernel inputs.
 
     Args:
@@ -120,28 +124,27 @@ def backward_kernel(grad: Tensor, B0: Tensor, Cq: Tensor, z: Tensor, c: Tensor, 
         (gA0, gB0, gdyc) each [nt, cols]; (gCq, gz, gc, gs) each [nt] (gz, gc, gs None without shading).
     """
     if not k.shading:
-        dy, alpha, dalpha = saved
-        gp = -grad[:, 0][pix] / (1.0 - alpha) * dalpha
+        dy, alpha = saved
+        gla = grad[:, 0][pix]
         gz = gc = gs = None
     else:
-        dy, alpha, dalpha, la, Mel, pb, Lb = saved
-        g = grad[:, 1:][pix]  # [nt, cols, rows, 3]
-        gZ, gC, gS = g.unbind(-1)
-        w = Mel * (-la)
-        z3 = z[:, None, None]
-        q = gZ * z3 + gC * c[:, None, None] + gS * s[:, None, None]
+        dy, alpha, nla, Mel, pb, Lb = saved
+        grad = grad.t()
+        gZ, gC, gS = grad[1][pix], grad[2][pix], grad[3][pix]
+        w = Mel * nla
+        q = gZ * z[:, None, None] + gC * c[:, None, None] + gS * s[:, None, None]
         gz = (gZ * w).sum((1, 2))
         gc = (gC * w).sum((1, 2))
         gs = (gS * w).sum((1, 2))
         G = torch.zeros(npix * k.bins, dtype=w.dtype, device=w.device)
-        G.scatter_add_(0, pb.reshape(-1), (q * (-la)).reshape(-1))
+        G.scatter_add_(0, pb.reshape(-1), (q * nla).reshape(-1))
         G = G.reshape(npix, k.bins)
         ELx, F, dF = _bin_tables(Lb)
-        GM = (G * ELx * F).masked_fill_(ring[:, None], 0.0)
-        H = grad[:, :1] + (GM.sum(1, keepdim=True) - torch.cumsum(GM, 1))
-        H = H + (G * ELx * dF).masked_fill_(ring[:, None], 0.0)
+        GM = (G * ELx * F).masked_fill_(border[:, None], 0.0)
+        H = grad[0][:, None] + (GM.sum(1, keepdim=True) - torch.cumsum(GM, 1))
+        H = H + (G * ELx * dF).masked_fill_(border[:, None], 0.0)
         gla = H.reshape(-1)[pb] - q * Mel
-        gp = -gla / (1.0 - alpha) * dalpha
+    gp = gla * (_dalpha(alpha, k) / (alpha - 1.0))
     gA0 = gp.sum(2)
     gpdy = gp * dy
     gB0 = gpdy.sum(2)

@@ -40,9 +40,9 @@ from vid2haircut.render.types import Footprint, PixelSums
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, A0, B0, dyc, Cq, z, c, s, pix, head, ring, npix, consts, fwd, bwd):
-        sums, visible, saved = fwd(A0, B0, dyc, Cq, z, c, s, pix, head, ring, npix, consts)
-        ctx.save_for_backward(B0, Cq, z, c, s, pix, ring, *saved)
+    def forward(ctx, A0, B0, dyc, Cq, z, c, s, pix, head, border, npix, consts, fwd, bwd):
+        sums, visible, saved = fwd(A0, B0, dyc, Cq, z, c, s, pix, head, border, npix, consts)
+        ctx.save_for_backward(B0, Cq, z, c, s, pix, border, *saved)
         ctx.npix, ctx.consts, ctx.bwd = npix, consts, bwd
         if visible is None:
             visible = torch.zeros(A0.shape[0], dtype=torch.bool, device=A0.device)
@@ -51,21 +51,21 @@ class _Composite(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad, _g_vis):
-        B0, Cq, z, c, s, pix, ring, *saved = ctx.saved_tensors
-        out = ctx.bwd(grad.contiguous(), B0, Cq, z, c, s, pix, ring, tuple(saved), ctx.npix, ctx.consts)
+        B0, Cq, z, c, s, pix, border, *saved = ctx.saved_tensors
+        out = ctx.bwd(grad.contiguous(), B0, Cq, z, c, s, pix, border, tuple(saved), ctx.npix, ctx.consts)
         return (*out, None, None, None, None, None, None, None)
 
 
-def padded_ring(batch: int, height: int, width: int, device) -> Tensor:
-    """[B * (H + 2) * (W + 2)] bool mask of the one-pixel padding ring."""
-    ring = torch.ones(batch, height + 2, width + 2, dtype=torch.bool, device=device)
-    ring[:, 1:-1, 1:-1] = False
-    return ring.reshape(-1)
+def padding_mask(batch: int, height: int, width: int, pad: int, device) -> Tensor:
+    """[B * (H + 2 pad) * (W + 2 pad)] bool mask, True on the padding."""
+    border = torch.ones(batch, height + 2 * pad, width + 2 * pad, dtype=torch.bool, device=device)
+    border[:, pad:-pad, pad:-pad] = False
+    return border.reshape(-1)
 
 
-def pad_head_depth(head_depth: Tensor, dtype) -> Tensor:
-    """[B, H, W] head depth (+inf where no head) -> flat padded [B * (H + 2) * (W + 2)]."""
-    return torch.nn.functional.pad(head_depth.to(dtype), (1, 1, 1, 1), value=float("inf")).reshape(-1)
+def pad_head_depth(head_depth: Tensor, pad: int, dtype) -> Tensor:
+    """[B, H, W] head depth (+inf where no head) -> flat padded [B * (H + 2 pad) * (W + 2 pad)]."""
+    return torch.nn.functional.pad(head_depth.to(dtype), (pad,) * 4, value=float("inf")).reshape(-1)
 
 
 def composite(
@@ -111,12 +111,13 @@ def composite(
     Cq = -0.5 * qvv[tg]
     z, c, s = depths[tg], dirs[tg, 0], dirs[tg, 1]
 
-    npix = batch * (height + 2) * (width + 2)
-    ring = padded_ring(batch, height, width, dev)
-    head = None if head_depth is None else pad_head_depth(head_depth, dt)
+    pad = fp.pad
+    npix = batch * (height + 2 * pad) * (width + 2 * pad)
+    border = padding_mask(batch, height, width, pad, dev)
+    head = None if head_depth is None else pad_head_depth(head_depth, pad, dt)
     fwd, bwd = _compiled() if compiled else (kernels.forward_kernel, kernels.backward_kernel)
-    sums, vis_tile = _Composite.apply(A0, B0, dyc, Cq, z, c, s, fp.pix, head, ring, npix, consts, fwd, bwd)
-    sums = sums.reshape(batch, height + 2, width + 2, -1)[:, 1:-1, 1:-1]
+    sums, vis_tile = _Composite.apply(A0, B0, dyc, Cq, z, c, s, fp.pix, head, border, npix, consts, fwd, bwd)
+    sums = sums.reshape(batch, height + 2 * pad, width + 2 * pad, -1)[:, pad:-pad, pad:-pad]
     log_t = sums[..., 0]
     weight = -torch.expm1(log_t)
     visible = torch.zeros(G, dtype=torch.bool, device=dev)

@@ -43,11 +43,12 @@ class Footprint(NamedTuple):
         tile_gauss: [nt] int64 index of the Gaussian (flattened over B * S) of each tile.
         u: [nt, cols] float pixel coordinate along u of each tile column (may lie off-image).
         vstart: [nt, cols] float v coordinate of the first window row of each column.
-        pix: [nt, cols, rows] int64 index into the padded (B, H + 2, W + 2) pixel buffer;
-            off-image pixels land in the one-pixel border ring, which is cropped away.
+        pix: [nt, cols, rows] int64 index into the padded (B, H + 2 pad, W + 2 pad) pixel
+            buffer; off-image pixels land in the padding, which is cropped away.
         horizontal: [G] bool, True where u = x for that Gaussian.
         rows: window height (pixels per column per tile).
         cols: tile width (columns per tile).
+        pad: image padding in pixels on every side.
     """
 
     tile_gauss: Tensor
@@ -57,6 +58,7 @@ class Footprint(NamedTuple):
     horizontal: Tensor
     rows: int
     cols: int
+    pad: int
 
 
 class PixelSums(NamedTuple):

@@ -144,19 +144,23 @@ def sample_prefix(points: np.ndarray, length: np.ndarray, n_points: int) -> np.n
     return x[r, j] + f[..., None] * (x[r, j + 1] - x[r, j])
 
 
-def truncate_at_face(points: np.ndarray, zone: FaceZone) -> np.ndarray:
+def truncate_at_face(points: np.ndarray, zone: FaceZone) -> tuple[np.ndarray, np.ndarray]:
     """Cut strands (N,P,3) just before their first point inside the face zone and resample them
-    to P points; other strands are returned unchanged. Returns (N,P,3) float64."""
+    to P points; other strands are returned unchanged.
+
+    Returns:
+        (strands (N,P,3) float64, indices (K,) of the strands that were cut).
+    """
     x = np.asarray(points, np.float64)
     inside = in_face_zone(x, zone)
     inside[:, 0] = False
     hit = np.nonzero(inside.any(1))[0]
     if len(hit) == 0:
-        return x
+        return x, hit
     k = np.argmax(inside[hit], axis=1)                                      # first inside index
     sub = x[hit]
     cum = np.concatenate([np.zeros((len(hit), 1)),
                           np.cumsum(np.linalg.norm(np.diff(sub, axis=1), axis=-1), 1)], 1)
     out = x.copy()
     out[hit] = sample_prefix(sub, cum[np.arange(len(hit)), k - 1], x.shape[1])
-    return out
+    return out, hit

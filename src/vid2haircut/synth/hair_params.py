@@ -79,6 +79,8 @@ class HairParams:
     """Growth of that distance per metre of arc length (hair layering / volume)."""
     max_offset: float = 0.03
     """Largest distance from the scalp that a strand keeps while on the head."""
+    collision_margin: float = 0.001
+    """Distance from the head that collision handling restores (short hair may lie closer)."""
     # -- curl / wave
     curl: str = "none"
     """"none", "wave" (planar sine) or "helix" (corkscrew curl)."""
@@ -112,8 +114,9 @@ _MEDIUM = dict(l_top=0.6, l_front=0.6, l_side=0.6, l_back=0.6, part_weight=1.0, 
 FAMILY_PARAMS: dict[str, HairParams] = {
     "buzz": HairParams(l_top=0.008, l_front=0.006, l_side=0.005, l_back=0.005, length_jitter=0.12,
                        part_weight=0.0, back_weight=0.3, radial_weight=1.0, lift=0.35, gravity=0.0,
-                       comb_strength=150.0, comb_decay=0.02, offset0=0.0005, volume=0.05,
-                       max_offset=0.003, strands_per_clump=1.0, clump_strength=0.0,
+                       comb_strength=150.0, comb_decay=0.02, offset0=0.0008, volume=0.05,
+                       max_offset=0.003, collision_margin=0.0003, strands_per_clump=1.0,
+                       clump_strength=0.0,
                        frizz_amp=0.0002, frizz_period=0.004, palette=(3, 3, 2, 1, 0.5, 0.2, 0.3, 1)),
     "short_straight": HairParams(l_top=0.065, l_front=0.06, l_side=0.03, l_back=0.035,
                                  length_jitter=0.1, part_weight=0.4, back_weight=0.8, lift=0.55,

@@ -39,6 +39,19 @@ class HeadSDF:
         """Signed distance (M,) float64 at points (M,3), metres, negative inside."""
         return self.value_and_grad(x, grad=False)[0]
 
+    def lower_bound(self, x: np.ndarray) -> np.ndarray:
+        """(M,) signed distance at points (M,3) inside the mesh's bounding box, and for points
+        outside it their distance to the box (a lower bound of the distance to the head)."""
+        x = np.asarray(x, np.float64).reshape(-1, 3)
+        if self._aabb is None:
+            return self(x)
+        lo, hi = self._aabb
+        gap = np.maximum(np.maximum(lo - x, x - hi), 0.0)
+        d = np.sqrt((gap * gap).sum(-1))
+        inb = d == 0.0
+        d[inb] = self(x[inb])
+        return d
+
     def near(self, x: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
         """Points (M,3) closer to the head than ``margin``: (indices (K,), distances (K,)).
 

@@ -104,9 +104,11 @@ def generate_hairstyle(family: str, seed: int, head=None, n_strands: int = 10000
     pts = apply_clumps(pts, clumps, p.clump_strength, p.clump_power, r_shape)
     pts = apply_curl(pts, p, clumps, r_shape)
     pts = apply_frizz(pts, p, r_shape)
-    pts = truncate_at_face(resample_polylines(pts, npts), zone)
-    pts = resolve_collisions(sdf, pts)
-    pts = resolve_collisions(sdf, truncate_at_face(pts, zone), iters=0)   # the face stays clear
+    pts, _ = truncate_at_face(resample_polylines(pts, npts), zone)
+    pts = resolve_collisions(sdf, pts, margin=p.collision_margin)
+    pts, cut = truncate_at_face(pts, zone)                 # collisions may push hair onto the face
+    if len(cut):
+        pts[cut] = resolve_collisions(sdf, pts[cut], margin=p.collision_margin, iters=0)
 
     _, colors = sample_colors(p.palette, n, r_col)
     return StrandSet(pts.astype(np.float32), {"color": colors, "uv": roots.uv},

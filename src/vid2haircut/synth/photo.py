@@ -38,7 +38,7 @@ class PhotoStyle:
     """Skin albedo."""
     background_top: tuple[float, float, float] = (0.42, 0.45, 0.50)
     background_bottom: tuple[float, float, float] = (0.16, 0.17, 0.19)
-    spec_primary: float = 0.28
+    spec_primary: float = 0.18
     """Strength of the white primary hair highlight."""
     spec_secondary: float = 0.45
     """Strength of the hair-coloured secondary highlight."""
@@ -195,7 +195,7 @@ def render_photo(camera: Camera, head, world_from_head: np.ndarray, strands: np.
         head: a head model (``vertices`` (V,3), ``faces`` (F,3), ``landmarks`` (68,3), canonical frame).
         world_from_head: (4, 4) head pose.
         strands: (N, P, 3) hair in the head's canonical frame, or None for a bald head.
-        colors: (N, 3) per-strand linear-RGB albedo.
+        colors: (N, 3) per-strand linear-RGB albedo (None: brown).
         style: look parameters.
         occlusion: (N, P) per-point light factor in [0, 1] (e.g. darker near the scalp); None = 1.
     Returns:
@@ -220,6 +220,8 @@ def render_photo(camera: Camera, head, world_from_head: np.ndarray, strands: np.
     if strands is not None and len(strands):
         pts = np.asarray(strands, dtype=np.float32)
         n, p = pts.shape[:2]
+        if colors is None:
+            colors = np.tile(np.array([[0.11, 0.058, 0.028]], np.float32), (n, 1))
         x_cam = affine(pts.reshape(-1, 3), rot, trans)
         sf = splat_polylines(_project(x_cam, cam.K).reshape(n, p, 3), hh, ww,
                              occluder_depth=frag.depth, step=style.strand_step_px)
@@ -230,14 +232,13 @@ def render_photo(camera: Camera, head, world_from_head: np.ndarray, strands: np.
         hair_z[hit] = sf.depth.reshape(-1)[hit]
         fg[hit] = True
 
-    def down(x: np.ndarray) -> np.ndarray:
-        return x.reshape(camera.height, s, camera.width, s, -1).mean(axis=(1, 3), dtype=np.float32).squeeze(-1) \
-            if x.ndim == 1 else x.reshape(camera.height, s, camera.width, s, 3).mean(axis=(1, 3), dtype=np.float32)
+    def down(x: np.ndarray) -> np.ndarray:  # (H*s*W*s, C) -> (H, W, C) box filter
+        return x.reshape(camera.height, s, camera.width, s, -1).mean(axis=(1, 3), dtype=np.float32)
 
     image = np.rint(linear_to_srgb(down(img)) * 255.0).astype(np.uint8)
-    alpha = down(fg.astype(np.float32))
-    hair = down(hair_cov)
-    zsum = down(hair_z)
+    alpha = down(fg.astype(np.float32))[..., 0]
+    hair = down(hair_cov)[..., 0]
+    zsum = down(hair_z)[..., 0]
     with np.errstate(invalid="ignore", divide="ignore"):
         hair_depth = np.where(hair > 0, zsum / hair, np.nan).astype(np.float32)
     return PhotoFrame(image, alpha, hair, hair_depth)

@@ -24,7 +24,7 @@ def _label(tile: np.ndarray, text: str) -> None:
     """Draw ``text`` in the top-left corner of an (H, W, 3) uint8 tile (in place), outlined."""
     import cv2
 
-    scale = max(0.35, tile.shape[0] / 400.0)
+    scale = max(0.35, tile.shape[0] / 330.0)
     org = (int(4 + 2 * scale), int(14 * scale + 4))
     cv2.putText(tile, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), max(2, int(3 * scale)), cv2.LINE_AA)
     cv2.putText(tile, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), max(1, int(scale)), cv2.LINE_AA)
@@ -43,12 +43,12 @@ def render_views(family: str, seed: int, head, size: int, n_strands: int, n_poin
     cam = make_camera(head, size, size, fill=0.5)
     front = make_transform(np.eye(3), np.zeros(3))
     back = make_transform(axis_angle_to_matrix(np.array([0.0, np.pi, 0.0])), np.zeros(3))
-    return tuple(render_photo(cam, head, pose, pts, colors, style, occ).image for pose in (front, back))
+    return tuple(render_photo(cam, head, pose, pts, colors, style, occ).image.copy() for pose in (front, back))
 
 
 def contact_sheet(path: str | Path, families: Sequence[str] | None = None, seed: int = 0, n_strands: int = 4000,
                   n_points: int = 64, size: int = 256, per_row: int = 5) -> Path:
-    """Write a PNG contact sheet: for every family a front | back pair, labelled with its name.
+    """Write a PNG contact sheet: for every family a front and a back view, labelled with its name.
 
     Args:
         path: output PNG.
@@ -74,10 +74,11 @@ def contact_sheet(path: str | Path, families: Sequence[str] | None = None, seed:
         log.info("contact sheet: %s", fam)
         front, back = render_views(fam, seed, head, size, n_strands, n_points)
         r, c = divmod(i, cols)
-        pair = np.concatenate([front, back], axis=1)
-        _label(pair, f"{fam} (front | back)")
-        sheet[r * size:(r + 1) * size, c * 2 * size:(c + 1) * 2 * size] = pair
-        sheet[r * size:(r + 1) * size, c * 2 * size + size - 1] = 255  # thin separator
+        _label(front, fam)
+        _label(back, "back")
+        sheet[r * size:(r + 1) * size, c * 2 * size:(c + 1) * 2 * size] = np.concatenate([front, back], axis=1)
+        if c:
+            sheet[r * size:(r + 1) * size, c * 2 * size:c * 2 * size + 2] = 255  # separator between families
     path = Path(path)
     write_image(path, sheet)
     return path

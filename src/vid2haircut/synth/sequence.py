@@ -120,16 +120,18 @@ def jitter_colors(colors: np.ndarray, sigma: float, rng: np.random.Generator) ->
 
 
 def relative_depth(hair: np.ndarray, hair_depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Coverage (H, W) and camera z (H, W) -> (depth in [0, 1] min-max normalised, valid (H, W) bool).
+    """Coverage (H, W) and camera z (H, W) -> (depth (H, W) float32 in [0, 1], valid (H, W) bool).
 
-    Valid where the pixel is at least half covered by visible hair; 0 elsewhere.
+    As a monocular depth network would give it: larger is farther, min-max normalised over the
+    valid pixels (at least half covered by visible hair), 0 elsewhere. Values are rounded to
+    multiples of 2^-16 (float32 exact) so that the ``.npz`` compresses well.
     """
     valid = (hair >= 0.5) & np.isfinite(hair_depth)
     depth = np.zeros(hair.shape, np.float32)
     if valid.any():
-        z = hair_depth[valid]
+        z = hair_depth[valid].astype(np.float64)
         lo, hi = float(z.min()), float(z.max())
-        depth[valid] = (z - lo) / max(hi - lo, 1e-9)
+        depth[valid] = np.round((z - lo) / max(hi - lo, 1e-9) * 65536.0) / 65536.0
     return depth, valid
 
 
@@ -153,6 +155,33 @@ def merged_calibration(path: Path, serial: str, cam: Camera, replace: bool = Fal
             raise ValueError(f"{path}: camera '{s}' has other intrinsics or image size than the new "
                              f"{cam.width}x{cam.height} camera '{serial}'; use another subject")
     return {**others, serial: cam}
+
+
+def write_projected_landmarks(root: Path, serial: str, cam: Camera, head, poses: np.ndarray, noise_px: float,
+                              rng: np.random.Generator) -> Path:
+    """Project the head's 68 landmarks for every pose (T, 4, 4), add N(0, noise_px) noise, write them.
+
+    Self-occluded landmarks are kept, as a 2D detector would still place them; a frame is marked
+    invalid only when fewer than half of its landmarks fall inside the image.
+    """
+    lmk, _ = cam.project(np.stack([apply_transform(pose, head.landmarks) for pose in poses]))  # (T, 68, 2)
+    lmk = lmk + rng.normal(0.0, noise_px, lmk.shape)
+    inside = (lmk[..., 0] >= 0) & (lmk[..., 0] < cam.width) & (lmk[..., 1] >= 0) & (lmk[..., 1] < cam.height)
+    return write_landmarks(root, serial, np.arange(len(poses)), lmk, inside.mean(1) >= 0.5)
+
+
+def meta_record(cfg: SynthConfig, motion: MotionParams, style: PhotoStyle, strands_shape: tuple) -> dict:
+    """The ``ground_truth/meta.json`` record: everything needed to regenerate the sequence."""
+    return {
+        "generator": "vid2haircut.synth", "software_version": __version__,
+        "family": cfg.family, "seed": cfg.seed, "config": asdict(cfg),
+        "head": {"model": cfg.head_model, "scale": cfg.head_scale, "width": cfg.head_width,
+                 "depth": cfg.head_depth, "crown": cfg.head_crown},
+        "motion": motion.to_dict(), "n_frames": cfg.n_frames, "image_size": [cfg.width, cfg.height],
+        "landmark_noise_px": cfg.landmark_noise_px, "serial": cfg.serial, "image_format": cfg.image_format,
+        "n_strands": int(strands_shape[0]), "n_points": int(strands_shape[1]), "style": asdict(style),
+        "frame_points_saved": bool(cfg.save_frame_points),
+    }
 
 
 def synthesize_sequence(dataset_root: str | Path, subject: str, seq_name: str, cfg: SynthConfig = SynthConfig(),
@@ -211,13 +240,8 @@ def synthesize_sequence(dataset_root: str | Path, subject: str, seq_name: str, c
         moved_all = list(pool.map(one_frame, range(cfg.n_frames)))
     frame_points = {f"frame_points_{t:05d}": m for t, m in enumerate(moved_all) if m is not None}
 
-    lmk3d = np.stack([apply_transform(pose, head.landmarks) for pose in poses])  # (T, 68, 3) world
-    lmk, _ = cam.project(lmk3d)
-    lmk = lmk + rng_lmk.normal(0.0, cfg.landmark_noise_px, lmk.shape)
-    inside = (lmk[..., 0] >= 0) & (lmk[..., 0] < cfg.width) & (lmk[..., 1] >= 0) & (lmk[..., 1] < cfg.height)
-    frames = np.arange(cfg.n_frames)
-    write_landmarks(root, cfg.serial, frames, lmk, inside.mean(1) >= 0.5)
-    write_tracking(root, frames, matrix_to_axis_angle(poses[:, :3, :3]), poses[:, :3, 3], 1.0)
+    write_projected_landmarks(root, cfg.serial, cam, head, poses, cfg.landmark_noise_px, rng_lmk)
+    write_tracking(root, np.arange(cfg.n_frames), matrix_to_axis_angle(poses[:, :3, :3]), poses[:, :3, 3], 1.0)
     save_cameras(calib, cameras)
 
     gt = StrandSet(rest, {"color": colors, "uv": np.asarray(hair.attributes["uv"], np.float32)},
@@ -227,16 +251,7 @@ def synthesize_sequence(dataset_root: str | Path, subject: str, seq_name: str, c
                   color=colors, uv=gt.attributes["uv"], **frame_points)
     else:
         save_strands(root / "ground_truth" / "strands.npz", gt)
-    write_json(root / "ground_truth" / "meta.json", {
-        "generator": "vid2haircut.synth", "software_version": __version__,
-        "family": cfg.family, "seed": cfg.seed, "config": asdict(cfg),
-        "head": {"model": cfg.head_model, "scale": cfg.head_scale, "width": cfg.head_width,
-                 "depth": cfg.head_depth, "crown": cfg.head_crown},
-        "motion": motion.to_dict(), "n_frames": cfg.n_frames, "image_size": [cfg.width, cfg.height],
-        "landmark_noise_px": cfg.landmark_noise_px, "serial": cfg.serial, "image_format": cfg.image_format,
-        "n_strands": int(rest.shape[0]), "n_points": int(rest.shape[1]), "style": asdict(style),
-        "frame_points_saved": bool(cfg.save_frame_points),
-    })
+    write_json(root / "ground_truth" / "meta.json", meta_record(cfg, motion, style, rest.shape))
     log.info("%s/%s: %d frames written to %s in %.1fs", subject, seq_name, cfg.n_frames, root,
              time.perf_counter() - t0)
     return root

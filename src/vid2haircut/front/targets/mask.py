@@ -3,19 +3,18 @@
 Fallback (for real head-and-shoulders video without hair masks), per frame:
 1. foreground F: the alpha matte (>= 0.5) when the sequence has one; otherwise GrabCut
    initialised with a head-and-shoulders rectangle built from the landmarks;
-2. face region: the polygon of the jaw contour closed over the brows -> definite background;
-   the forehead band above the brows (up to ``forehead`` x face height) -> probable background
-   (bangs may cover it);
-3. body: below the jaw contour inside its x extent (the neck) -> definite background;
-4. F above the chin, at least ``seed_border`` inside F and ``seed_face_gap`` away from the face
-   and forehead -> definite hair (the seed of the hair colour model), the rest of F -> probable
-   hair; everything outside F -> definite background;
-5. GrabCut (colour GMMs) refines the labels above the chin line (pass 1);
-6. below the chin only the columns where pass-1 hair reaches the chin line are candidates
-   (hair hanging down; the body elsewhere is dropped); a second GrabCut, seeded with the pass-1
-   hair as definite hair, decides them (pass 2);
-7. the result is intersected with F, cleaned by a small morphological opening and restricted to
-   the connected components reaching above the brows.
+2. face: the polygon of the jaw contour closed over the brows; neck: below the jaw contour
+   inside its x extent -> both definite non-hair (and the samples of the non-hair colours);
+3. seed: F above the chin, at least ``seed_border`` inside F and ``seed_face_gap`` away from the
+   face and from the forehead band (``forehead`` face heights above the brows) -> definite hair
+   (the samples of the hair colours);
+4. candidates -> probable hair: the rest of F; below the chin only the columns the seed reaches
+   (hair hanging down), so the body elsewhere is dropped;
+5. GrabCut (colour GMMs + contrast-sensitive smoothness) refines the labels; it only sees F:
+   pixels outside F are painted with the median non-hair colour, so its background model
+   describes skin and body rather than the scenery;
+6. the result is cleaned by a small morphological opening and restricted to the connected
+   components reaching above the brows.
 Output: (H, W) float32 mask in {0, 1}. Deterministic (OpenCV's RNG is seeded).
 """
 
@@ -149,58 +148,47 @@ def hair_mask_fallback(image: np.ndarray, lmk: np.ndarray, alpha: np.ndarray | N
         fg = foreground_from_landmarks(image, lmk, cfg)
     poly, fw, fh, brow_y = _face_geometry(lmk)
     face = _poly_mask(poly, (h, w))
-    yy, xx = np.mgrid[0:h, 0:w]
-    # forehead band: the face polygon's x extent, from the brows up by `forehead` face heights
+    yy = np.mgrid[0:h, 0:w][0]
+    # forehead band: the brows' x extent, from the brows up by `forehead` face heights
     top_pts = poly[len(JAW):].copy()
-    band_poly = np.concatenate([top_pts, top_pts[::-1] - [0.0, cfg.forehead * fh]])
-    forehead = _poly_mask(band_poly, (h, w))
-    # jaw line: interpolated over the jaw's x extent; neck = below it inside that extent
+    forehead = _poly_mask(np.concatenate([top_pts, top_pts[::-1] - [0.0, cfg.forehead * fh]]), (h, w))
+    # jaw line over the jaw's x extent; the neck is below it
     jaw = lmk[JAW]
     order = np.argsort(jaw[:, 0])
-    jx, jy = jaw[order, 0], jaw[order, 1]
-    jaw_y = np.interp(np.arange(w), jx, jy, left=np.inf, right=np.inf)
+    jaw_y = np.interp(np.arange(w), jaw[order, 0], jaw[order, 1], left=np.inf, right=np.inf)
     neck = yy > jaw_y[None, :]
     chin_y = float(jaw[:, 1].max())
     below_chin = yy > chin_y
 
-    # seed: foreground above the chin, away from its border and away from the face -> hair
     def disk(radius: float) -> np.ndarray:
         r = max(1, int(round(radius)))
         return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
 
+    # seed: foreground above the chin, away from its border and away from the face -> hair
     inner = cv2.erode(fg.astype(np.uint8), disk(cfg.seed_border * fw)).astype(bool)
     near_face = cv2.dilate((face | forehead).astype(np.uint8), disk(cfg.seed_face_gap * fw)).astype(bool)
     seed = inner & ~near_face & ~below_chin & ~neck
-
-    # pass 1: the head above the chin line
+    nonhair = fg & (face | neck)
+    if not seed.any():
+        return np.zeros((h, w), np.float32)
+    # candidates: the rest of F; below the chin only in the columns the seed hair reaches
+    cols = cv2.dilate(seed.any(axis=0).astype(np.uint8)[None], np.ones((1, 2 * max(1, int(0.05 * fw)) + 1), np.uint8))[0] > 0
+    cand = fg & ~seed & ~face & ~neck & (~below_chin | cols[None, :])
     labels = np.full((h, w), cv2.GC_BGD, np.uint8)
-    labels[fg] = cv2.GC_PR_FGD
-    labels[fg & forehead] = cv2.GC_PR_BGD
+    labels[cand] = cv2.GC_PR_FGD
     labels[seed] = cv2.GC_FGD
-    labels[face | neck] = cv2.GC_BGD
-    cut = int(np.clip(np.ceil(chin_y), 1, h))
-    hair = np.zeros((h, w), bool)
-    hair[:cut] = _grabcut(image[:cut], labels[:cut], cfg) & fg[:cut] & ~face[:cut] & ~neck[:cut]
-    # pass 2: hair hanging below the chin, in the columns where hair reaches the chin line
-    band = hair[max(0, int(chin_y - 0.15 * fh)):cut].any(axis=0)
-    cols = cv2.dilate(band.astype(np.uint8)[None], np.ones((1, 2 * max(1, int(0.05 * fw)) + 1), np.uint8))[0] > 0
-    cand = fg & below_chin & ~neck & cols[None, :]
-    if cand.any() and hair.any():
-        labels2 = np.full((h, w), cv2.GC_BGD, np.uint8)
-        labels2[:cut][hair[:cut]] = cv2.GC_FGD
-        labels2[cand] = cv2.GC_PR_FGD
-        hair |= _grabcut(image, labels2, cfg) & cand
+    # GrabCut only sees F: outside it paint the face colour, so its background model describes
+    # skin and body rather than the scenery (a dark backdrop would otherwise explain dark hair)
+    painted = image.copy()
+    painted[~fg] = np.median(image[nonhair], axis=0) if nonhair.any() else 0
+    hair = _grabcut(painted, labels, cfg) & fg & ~face & ~neck
 
-    r = max(1, int(round(0.02 * fw)))
-    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-    hair = cv2.morphologyEx(hair.astype(np.uint8), cv2.MORPH_OPEN, k).astype(bool)
+    hair = cv2.morphologyEx(hair.astype(np.uint8), cv2.MORPH_OPEN, disk(0.02 * fw)).astype(bool)
     # keep the components that reach above the brows (hair grows from the scalp)
     n, comp = cv2.connectedComponents(hair.astype(np.uint8), connectivity=8)
     if n > 1:
-        above = comp[(yy < brow_y) & hair]
-        keep = np.unique(above)
+        keep = np.unique(comp[(yy < brow_y) & hair])
         hair = np.isin(comp, keep[keep > 0])
-    del xx
     return hair.astype(np.float32)
 
 

@@ -1,0 +1,217 @@
+"""Configuration of the fitting stages (nerfstudio style: one dataclass per component, a docstring
+under every field).
+
+Loss weights default to the published Vid2Haircut values (``shared/docs/method.md``) where our losses
+have the same units; the rest are tuned on ``benchmarks/quality.py`` and say so. Every setting can
+be overridden from a JSON object (``--settings``) with :func:`apply_overrides`, e.g.
+``{"switches": {"use_deformation": false}}`` or the dotted form ``{"switches.use_deformation": false}``,
+so each ablation is one override.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+@dataclass
+class LossWeights:
+    """Weights of the loss terms; the trainer sums ``weight * term`` over the model's loss dict."""
+
+    silhouette: float = 1.0
+    """L1 between the rendered and the target hair silhouette (method.md: 1)."""
+    direction: float = 0.8
+    """Undirected L1 between rendered and target 2D hair directions (method.md: 0.8)."""
+    depth: float = 0.1
+    """L1 between quantile-normalised rendered and target depth inside both masks (Vid2Haircut: 0.1)."""
+    penetration: float = 1.0e4
+    """mean(relu(-sdf)) of the strand points, metres (Vid2Haircut: 1e4)."""
+    smooth_length: float = 1.0
+    """Neighbour-strand smoothness of strand length (relative difference; method.md: 1)."""
+    smooth_length_back: float = 100.0
+    """Length smoothness weight in the back region (behind the ears; method.md: 100)."""
+    smooth_direction: float = 1.0
+    """Neighbour-strand smoothness of segment directions, mean (1 - cos) (method.md: 1)."""
+    pca: float = 1.0
+    """PCA-coefficient consistency of unobserved texels with their neighbours (tuned)."""
+    canonical: float = 1.0e4
+    """Offsets of the reference (canonical) keyframe pushed to zero, mean |dx|^2 in m^2 (method.md: 1e4)."""
+    motion: float = 1.0e-6
+    """Mean squared per-frame offset |dx_t|^2, m^2 (method.md: 1e-6)."""
+    frame_code: float = 1.0e-6
+    """Mean squared frame latent code (method.md: 1e-6)."""
+
+
+@dataclass
+class RenderSettings:
+    """How guide strands are drawn while fitting (a cheap stand-in for the dense hair)."""
+
+    size: int = 160
+    """Fitting resolution: the longer image side in pixels (targets are downsampled to it)."""
+    n_points: int = 32
+    """Points per guide strand when rendered (subsampled from the codec's 100)."""
+    strand_width: float = 0.004
+    """Short-axis size of each guide Gaussian, metres: a guide stands for the strands of its texel
+    (about 6.5 mm apart on a 32x32 map), so it is drawn much wider than one hair (0.35 mm)."""
+    occlude_head: bool = True
+    """Hide hair behind the head mesh (rendered once per keyframe)."""
+    bins: int = 16
+    """Depth-compositing bins of the renderer."""
+    depth_bin: float = 0.002
+    """Depth-bin size of the renderer, metres."""
+
+
+@dataclass
+class Switches:
+    """Method components that can be turned off (ablations are one override)."""
+
+    use_deformation: bool = True
+    """Stage 2: per-frame deformation MLP (False: rigid head pose only; offsets exactly zero)."""
+    use_smoothness: bool = True
+    """Stage 2: neighbour-strand smoothness of length and direction."""
+    use_visibility: bool = True
+    """Stage 2: the gradient of keyframe t reaches only the canonical segments visible in t."""
+    use_pca_consistency: bool = True
+    """Stage 2: PCA-coefficient consistency between observed and unobserved scalp texels."""
+
+
+@dataclass
+class Stage1Config:
+    """Stage 1: single-view fit of the hair map on the reference keyframe (Im2Haircut baseline)."""
+
+    iterations: int = 100
+    """Optimisation steps (method.md: 100)."""
+    coarse_steps: int = 20
+    """Steps during which only the first ``coarse_components`` PCA components are optimised."""
+    coarse_components: int = 10
+    """PCA components optimised during the coarse steps (method.md: 10)."""
+    lr_prior: float = 1.0e-4
+    """AdamW learning rate when fine-tuning the prior network (method.md: 1e-4)."""
+    weight_decay_prior: float = 1.0e-3
+    """AdamW weight decay when fine-tuning the prior network (method.md: 1e-3)."""
+    lr_z: float = 0.03
+    """Adam learning rate when the hair map Z itself is the parameter (no prior; whitened units)."""
+    mask_threshold: float = 0.5
+    """Texels whose baldness-mask value reaches this carry a guide strand."""
+    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01, penetration=1.0e4))
+    """Loss weights (Stage 1 uses silhouette, direction, depth and penetration only)."""
+    render: RenderSettings = field(default_factory=RenderSettings)
+    """Guide rendering settings."""
+    n_dense: int = 10000
+    """Dense strands decoded for the output."""
+    device: str = "cpu"
+    """Torch device."""
+    seed: int = 0
+    """Seed of everything random (dense root sampling, frame codes)."""
+
+
+@dataclass
+class Stage2Config:
+    """Stage 2: joint refinement over all keyframes (Vid2Haircut)."""
+
+    iterations: int = 300
+    """Total optimisation steps (method.md: ~800 on a GPU; fewer here for the CPU budget)."""
+    canonical_steps: int = 150
+    """Steps with the canonical hair only, before the deformation MLP is switched on (method.md: 300)."""
+    ramp_steps: int = 50
+    """Steps over which the deformation is ramped in linearly from 0 to 1 (method.md: 100)."""
+    n_keyframes: int = 6
+    """Keyframes used (the reference plus the others in file order; <= the number available)."""
+    frames_per_step: int = 0
+    """Keyframes rendered per step (0 = all; fewer = a deterministic rotating subset)."""
+    lr_z: float = 0.02
+    """Adam learning rate of the hair map Z (whitened units)."""
+    lr_mlp: float = 1.0e-2
+    """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2)."""
+    lr_codes: float = 1.0e-3
+    """Adam learning rate of the frame codes (method.md: 1e-3)."""
+    max_offset: float = 0.008
+    """Largest deformation offset at a strand tip, metres (method.md: 8 mm)."""
+    observed_fraction: float = 0.05
+    """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
+    weights: LossWeights = field(default_factory=LossWeights)
+    """Loss weights."""
+    switches: Switches = field(default_factory=Switches)
+    """Ablation switches."""
+    render: RenderSettings = field(default_factory=RenderSettings)
+    """Guide rendering settings."""
+    mask_threshold: float = 0.5
+    """Texels whose baldness-mask value reaches this carry a guide strand."""
+    n_dense: int = 10000
+    """Dense strands decoded for the output."""
+    checkpoint_every: int = 50
+    """Write a resumable checkpoint every this many steps (0 = only at the end)."""
+    device: str = "cpu"
+    """Torch device."""
+    seed: int = 0
+    """Seed of everything random."""
+
+
+def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
+    name = path[0]
+    if not dataclasses.is_dataclass(obj) or name not in {f.name for f in dataclasses.fields(obj)}:
+        known = sorted(f.name for f in dataclasses.fields(obj)) if dataclasses.is_dataclass(obj) else []
+        raise ValueError(f"settings: unknown key {full!r} (known here: {known})")
+    cur = getattr(obj, name)
+    if len(path) > 1:
+        _set(cur, path[1:], value, full)
+    elif dataclasses.is_dataclass(cur):
+        if not isinstance(value, dict):
+            raise ValueError(f"settings: {full!r} must be an object, got {value!r}")
+        for k, v in value.items():
+            _set(cur, [k], v, f"{full}.{k}")
+    else:
+        if isinstance(cur, bool) and not isinstance(value, bool):
+            raise ValueError(f"settings: {full!r} must be true or false, got {value!r}")
+        if isinstance(cur, (int, float)) and not isinstance(cur, bool):
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"settings: {full!r} must be a number, got {value!r}")
+            if isinstance(cur, int) and not float(value).is_integer():
+                raise ValueError(f"settings: {full!r} must be an integer, got {value!r}")
+            value = type(cur)(value)
+        setattr(obj, name, value)
+
+
+def apply_overrides(cfg: Any, overrides: dict | None) -> Any:
+    """A deep copy of the config dataclass ``cfg`` with ``overrides`` applied.
+
+    Args:
+        cfg: a config dataclass (e.g. :class:`Stage2Config`).
+        overrides: nested ``{"weights": {"depth": 0.1}}`` or dotted ``{"weights.depth": 0.1}`` keys.
+
+    Raises:
+        ValueError naming the key when it is unknown or has the wrong type.
+    """
+    out = copy.deepcopy(cfg)
+    for key, value in (overrides or {}).items():
+        _set(out, str(key).split("."), value, str(key))
+    return out
+
+
+def load_settings(text_or_path: str | None) -> dict:
+    """Parse ``--settings``: a JSON object given inline or as the path of a JSON file ({} for None)."""
+    if not text_or_path:
+        return {}
+    p = Path(text_or_path)
+    if not text_or_path.lstrip().startswith("{") and p.suffix == ".json":
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: settings file not found")
+        text, where = p.read_text(), str(p)
+    else:
+        text, where = text_or_path, "--settings"
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{where}: not valid JSON ({e})") from None
+    if not isinstance(obj, dict):
+        raise ValueError(f"{where}: settings must be a JSON object, got {type(obj).__name__}")
+    return obj
+
+
+def config_to_dict(cfg: Any) -> dict:
+    """JSON-able dict of a config dataclass."""
+    return dataclasses.asdict(cfg)
