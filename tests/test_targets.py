@@ -99,30 +99,29 @@ def test_targets_deterministic(synth, run, tmp_path):
             np.testing.assert_array_equal(a[k], b[k])
 
 
-def test_triangulated_depth_orders_hair(synth, run):
-    """Sparse depth from hair tracks across keyframes agrees in order with the true hair depth."""
-    from scipy.stats import spearmanr
-
-    from vid2haircut.front.targets.depth import DepthConfig, depth_targets
+def test_triangulated_depth(synth, run):
+    """Sparse depth from hair tracks across keyframes agrees with the true hair depth."""
+    from vid2haircut.front.targets.depth import DepthConfig, depth_targets, triangulated_depth
 
     _, fit, _ = run
     seq, _ = _truth(synth, fit, 0)
-    masks = {int(t): seq.read_hair_mask(int(t)) for t in fit.frames}
-    depth, source = depth_targets(seq, [int(t) for t in fit.frames], fit.world_from_head, masks,
-                                  DepthConfig(source="triangulate"))
-    assert source == "triangulate"
-    d_all, z_all = [], []
-    for i, t in enumerate(fit.frames):
-        d, v = depth[int(t)]
+    frames = [int(t) for t in fit.frames]
+    masks = {t: seq.read_hair_mask(t) for t in frames}
+    raw = triangulated_depth(seq, frames, fit.world_from_head, masks)
+    err = []
+    for i, t in enumerate(frames):
+        z, v = raw[t]
         _, (_, z_true) = _truth(synth, fit, i)
+        assert not np.any(v & (masks[t] < 0.5))
         ok = v & np.isfinite(z_true)
-        d_all.append(d[ok])
-        z_all.append(z_true[ok])
-        assert not np.any(v & (masks[int(t)] < 0.5))
-    d_all, z_all = np.concatenate(d_all), np.concatenate(z_all)
-    assert len(d_all) >= 30
-    # per-frame normalisation breaks a global order a little; the order within frames is what matters
-    assert spearmanr(d_all, z_all)[0] > 0.3
+        err.append(np.abs(z[ok] - z_true[ok]))
+    err = np.concatenate(err)
+    print("triangulated depth samples", len(err), "median abs error mm", round(1000 * float(np.median(err)), 1))
+    assert len(err) >= 10
+    assert np.median(err) < 0.025  # the hair spans ~0.15-0.25 m in depth
+    norm, source = depth_targets(seq, frames, fit.world_from_head, masks, DepthConfig(source="triangulate"))
+    assert source == "triangulate" and sum(v.sum() for _, v in norm.values()) == len(err) + sum(
+        (raw[t][1] & ~np.isfinite(_truth(synth, fit, i)[1][1])).sum() for i, t in enumerate(frames))
     # no depth target when asked for none
     none, src = depth_targets(seq, [0], fit.world_from_head[:1], {0: masks[0]}, DepthConfig(source="none"))
     assert src == "none" and not none[0][1].any()

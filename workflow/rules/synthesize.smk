@@ -25,4 +25,4 @@ rule synthesize:
         "{params.cli} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " --family {params.family} --seed {params.seed} --frames {params.frames} --size {params.size}"
         " --strands {params.strands} --points {params.points} --landmark-noise {params.noise}"
-        " --yaw-max {params.yaw} --sway-max {params.sway} > {log} 2>&1"
+        " --yaw-max {params.yaw} --sway-max {params.sway} --overwrite > {log} 2>&1"

@@ -90,20 +90,34 @@ class DeformationField(nn.Module):
         cfg: settings.
     """
 
-    def __init__(self, n_frames: int, n_strands: int, cfg: DeformConfig | None = None):
+    def __init__(self, n_frames: int, n_strands: int, cfg: DeformConfig | None = None, seed: int = 0):
         super().__init__()
         self.cfg = cfg or DeformConfig()
         c = self.cfg
         self.frame_codes = nn.Embedding(n_frames, c.frame_code_dim)
-        nn.init.normal_(self.frame_codes.weight, std=0.01)
         self.frame_lift = nn.Sequential(nn.Linear(c.frame_code_dim, c.frame_feat_dim), nn.SiLU(),
                                         nn.Linear(c.frame_feat_dim, c.frame_feat_dim), nn.SiLU())
         self.texel_embed = nn.Embedding(n_strands, c.texel_dim)
-        nn.init.zeros_(self.texel_embed.weight)
         in_dim = 3 + 3 + 1 + 4 * c.n_freqs + c.texel_dim + c.frame_feat_dim
         self.mlp = nn.Sequential(nn.Linear(in_dim, c.hidden), nn.Softplus(),
                                  nn.Linear(c.hidden, c.hidden), nn.Softplus(), nn.Linear(c.hidden, 2))
-        # Start at rest: the last layer outputs zero offsets until it is trained.
+        self.reset_parameters(seed)
+
+    @torch.no_grad()
+    def reset_parameters(self, seed: int = 0) -> None:
+        """Deterministic initialisation from ``seed`` (a private ``torch.Generator``, global RNG untouched).
+
+        Frame codes ~ N(0, 0.01^2); linear layers uniform in +-1/sqrt(fan_in) (PyTorch's default
+        bounds); texel embeddings zero; the last layer zero, so the field starts at rest (zero offsets).
+        """
+        g = torch.Generator().manual_seed(int(seed))
+        w = self.frame_codes.weight
+        w.copy_(torch.randn(w.shape, generator=g) * 0.01)
+        for layer in [m for m in self.modules() if isinstance(m, nn.Linear)]:
+            bound = 1.0 / math.sqrt(layer.in_features)
+            for p in (layer.weight, layer.bias):
+                p.copy_((torch.rand(p.shape, generator=g) * 2.0 - 1.0) * bound)
+        nn.init.zeros_(self.texel_embed.weight)
         nn.init.zeros_(self.mlp[-1].weight)
         nn.init.zeros_(self.mlp[-1].bias)
 
@@ -144,10 +158,24 @@ class DeformationField(nn.Module):
         w = deformation_weight(u, c.pinned_fraction)[None, :, None]
         return w * c.max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
 
-    def forward(self, points: torch.Tensor, frame: int, strand_index: torch.Tensor | None = None) -> torch.Tensor:
-        """Deformed canonical strands x + dx_t with segment lengths restored. (N,P,3) -> (N,P,3)."""
+    def forward(self, points: torch.Tensor, frame: int, strand_index: torch.Tensor | None = None,
+                scale: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+        """Deformed canonical strands of keyframe ``frame`` and their offsets.
+
+        Args:
+            points: (N,P,3) canonical strands (root first).
+            frame: keyframe position (index into the frame codes).
+            strand_index: (N,) texel-embedding indices (default arange(N)).
+            scale: factor on the offsets (the ramp-in of the schedule; 0 gives exactly ``points``).
+
+        Returns:
+            (x + scale * dx_t with segment lengths restored (N,P,3), scale * dx_t (N,P,3)).
+        """
+        if scale == 0.0:
+            return points, torch.zeros_like(points)
+        off = self.offsets(points, frame, strand_index) * scale
         seg_len = (points[:, 1:] - points[:, :-1]).norm(dim=-1)
-        return rechain(points + self.offsets(points, frame, strand_index), seg_len)
+        return rechain(points + off, seg_len), off
 
     def regularizers(self) -> dict[str, torch.Tensor]:
         """Small penalties on the frame codes (method.md: 1e-6 weight applied by the caller)."""

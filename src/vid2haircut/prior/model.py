@@ -50,9 +50,11 @@ class PriorConfig:
     """Hair map resolution R (a multiple of ``2 ** len(dec_channels)``)."""
     k: int = 64
     """Coefficients per texel K (= the codec's K)."""
-    enc_channels: tuple[int, ...] = (24, 48, 96, 128)
-    """Channels of the stride-2 encoder stages (the last one is the token width before projection)."""
-    d_model: int = 128
+    stem_stride: int = 4
+    """Stride (= kernel size) of the patchifying stem convolution."""
+    enc_channels: tuple[int, ...] = (24, 48, 96)
+    """Channels of the stem, then of each stride-2 encoder stage (tokens at S / (stem * 2^(n-1)))."""
+    d_model: int = 96
     """Transformer width."""
     n_heads: int = 4
     """Attention heads."""
@@ -60,13 +62,20 @@ class PriorConfig:
     """Transformer blocks."""
     mlp_ratio: int = 2
     """Hidden width of the transformer MLP, in units of ``d_model``."""
-    dec_channels: tuple[int, ...] = (96, 64)
+    dec_channels: tuple[int, ...] = (64, 32)
     """Channels of the x2 decoder stages (from the q x q query grid to R x R)."""
+
+    @property
+    def token_res(self) -> int:
+        """Side of the image token grid."""
+        return self.input_size // (self.stem_stride * 2 ** (len(self.enc_channels) - 1))
 
     def __post_init__(self) -> None:
         n_enc, n_dec = len(self.enc_channels), len(self.dec_channels)
-        if n_enc < 1 or self.input_size % (2 ** n_enc):
-            raise ValueError(f"PriorConfig: input_size {self.input_size} must be a multiple of 2^{n_enc}")
+        down = self.stem_stride * 2 ** max(n_enc - 1, 0)
+        if n_enc < 1 or self.stem_stride < 1 or self.input_size % down:
+            raise ValueError(f"PriorConfig: input_size {self.input_size} must be a multiple of {down} "
+                             f"(stem stride x 2^(stages-1))")
         if self.map_res % (2 ** n_dec) or self.map_res // (2 ** n_dec) < 1:
             raise ValueError(f"PriorConfig: map_res {self.map_res} must be a multiple of 2^{n_dec}")
         if self.d_model % self.n_heads:
@@ -75,8 +84,8 @@ class PriorConfig:
     @staticmethod
     def tiny() -> "PriorConfig":
         """A very small net for tests (S=64, R=16, K=16)."""
-        return PriorConfig(input_size=64, map_res=16, k=16, enc_channels=(8, 16, 32), d_model=32, n_heads=2,
-                           n_blocks=2, dec_channels=(32, 16))
+        return PriorConfig(input_size=64, map_res=16, k=16, stem_stride=4, enc_channels=(8, 16), d_model=32,
+                           n_heads=2, n_blocks=2, dec_channels=(16,))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able dict (tuples as lists)."""
@@ -129,13 +138,16 @@ class PriorNet(nn.Module):
     def __init__(self, cfg: PriorConfig = PriorConfig()) -> None:
         super().__init__()
         self.cfg = cfg
-        stages, cin = [], cfg.in_channels
-        for c in cfg.enc_channels:
+        c0 = cfg.enc_channels[0]
+        stages = [nn.Sequential(nn.Conv2d(cfg.in_channels, c0, cfg.stem_stride, cfg.stem_stride, bias=False),
+                                nn.GroupNorm(_groups(c0), c0), nn.GELU())]
+        cin = c0
+        for c in cfg.enc_channels[1:]:
             stages.append(nn.Sequential(_conv(cin, c, 2), _conv(c, c)))
             cin = c
         self.encoder = nn.Sequential(*stages)
         self.proj = nn.Conv2d(cin, cfg.d_model, 1)
-        g = cfg.input_size // (2 ** len(cfg.enc_channels))
+        g = cfg.token_res
         q = cfg.map_res // (2 ** len(cfg.dec_channels))
         self.grid, self.query_res = g, q
         self.pos = nn.Parameter(0.02 * torch.randn(g * g, cfg.d_model))
@@ -144,8 +156,8 @@ class PriorNet(nn.Module):
         self.norm = nn.LayerNorm(cfg.d_model)
         dec, cin = [], cfg.d_model
         for c in cfg.dec_channels:
-            dec.append(nn.Sequential(nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False),
-                                     _conv(cin, c), _conv(c, c)))
+            dec.append(nn.Sequential(nn.ConvTranspose2d(cin, c, 2, 2, bias=False), nn.GroupNorm(_groups(c), c),
+                                     nn.GELU(), _conv(c, c)))
             cin = c
         self.decoder = nn.Sequential(*dec)
         self.head = nn.Conv2d(cin, cfg.k + 1, 1)

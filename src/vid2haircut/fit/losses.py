@@ -1,0 +1,188 @@
+"""Loss terms of the fitting stages; each returns a scalar tensor (weights are applied by the trainer).
+
+Image terms compare a :class:`~vid2haircut.render.StrandRender` of B keyframes with the targets:
+
+- :func:`silhouette_loss`: mean |s - s_hat| over the image.
+- :func:`direction_loss`: undirected L1 of 2D directions: with o = (cos a, sin a) of the rendered
+  and o_hat of the target direction, min(|o - o_hat|_1, |o + o_hat|_1) (the pi ambiguity), averaged
+  with weight ``target mask * confidence`` over pixels where the render has hair.
+- :func:`depth_loss`: L1 between rendered and target relative depth inside both masks; the rendered
+  camera depth is normalised per frame like the targets (5% / 95% quantiles -> 0 / 1).
+
+Geometry terms act on strands in the canonical head frame:
+
+- :func:`penetration_loss`: mean(relu(-sdf(x))) in metres.
+- :func:`smoothness_losses`: neighbouring texels (4-neighbours on the scalp map) should have similar
+  strand lengths (|L_i - L_j| in metres, weighted up in the back region) and similar segment
+  directions (mean 1 - cos of corresponding segments).
+- :func:`pca_consistency_loss`: the coefficients of texels not observed in any keyframe should
+  agree with the mean of their hair-bearing neighbours (observed neighbours enter detached, so
+  information flows from observed into unobserved regions, never back).
+- :func:`motion_loss`: mean squared deformation offset.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+__all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
+           "smoothness_losses", "pca_consistency_loss", "motion_loss", "quantile_normalize"]
+
+
+def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
+    """Mean L1 between silhouettes. pred, target: (B,H,W) in [0,1] -> scalar."""
+    return (pred - target).abs().mean()
+
+
+def _half_angle_vectors(doubled: Tensor, ok: Tensor) -> Tensor:
+    """(...,2) doubled-angle vectors (cos 2a, sin 2a) -> (...,2) unit (cos a, sin a); (1,0) where not ok."""
+    c = torch.where(ok, doubled[..., 0], torch.ones_like(doubled[..., 0]))
+    s = torch.where(ok, doubled[..., 1], torch.zeros_like(doubled[..., 1]))
+    a = 0.5 * torch.atan2(s, c)
+    return torch.stack([torch.cos(a), torch.sin(a)], -1)
+
+
+def direction_loss(pred_dir: Tensor, pred_mask: Tensor, target_dir: Tensor, weight: Tensor) -> Tensor:
+    """Undirected L1 of 2D hair directions.
+
+    Args:
+        pred_dir: (B,H,W,2) rendered doubled-angle unit vectors ((0,0) where empty).
+        pred_mask: (B,H,W) bool, pixels where the render has hair.
+        target_dir: (B,H,W,2) target doubled-angle unit vectors.
+        weight: (B,H,W) >= 0 per-pixel weight (target mask times confidence).
+
+    Returns:
+        Scalar weighted mean of min(|o - o_hat|_1, |o + o_hat|_1); 0 when no pixel has weight.
+    """
+    ok = pred_mask & ((pred_dir * pred_dir).sum(-1) > 1e-12)
+    w = torch.where(ok, weight, torch.zeros_like(weight))
+    o = _half_angle_vectors(pred_dir, ok)
+    oh = _half_angle_vectors(target_dir, torch.ones_like(ok))
+    err = torch.minimum((o - oh).abs().sum(-1), (o + oh).abs().sum(-1))
+    return (err * w).sum() / w.sum().clamp_min(1e-6)
+
+
+def quantile_normalize(depth: Tensor, region: Tensor, q: tuple[float, float] = (0.05, 0.95)) -> Tensor:
+    """Map (H,W) depth inside the bool (H,W) region by its quantiles q to 0 and 1 (differentiable)."""
+    vals = depth[region]
+    qs = torch.quantile(vals, torch.tensor(q, dtype=depth.dtype, device=depth.device))
+    return (depth - qs[0]) / (qs[1] - qs[0]).clamp_min(1e-6)
+
+
+def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, target_valid: Tensor,
+               min_pixels: int = 16) -> Tensor:
+    """L1 of relative depth.
+
+    Args:
+        pred_depth: (B,H,W) rendered camera z (metres); pred_mask: (B,H,W) bool.
+        target_depth: (B,H,W) relative target depth (0 near, 1 far); target_valid: (B,H,W) bool.
+        min_pixels: frames whose common region is smaller are skipped.
+
+    Returns:
+        Scalar mean over frames (with enough pixels) of the mean |d - d_hat| in the common region.
+    """
+    terms = []
+    for b in range(pred_depth.shape[0]):
+        region = pred_mask[b] & target_valid[b]
+        if int(region.sum()) < min_pixels:
+            continue
+        d = quantile_normalize(pred_depth[b], region)
+        terms.append((d - target_depth[b])[region].abs().mean())
+    return torch.stack(terms).mean() if terms else pred_depth.sum() * 0.0
+
+
+def penetration_loss(points: Tensor, sdf: Callable[[Tensor], Tensor]) -> Tensor:
+    """mean(relu(-sdf(points))). points: (...,3) canonical head frame, metres -> scalar."""
+    return torch.relu(-sdf(points)).mean()
+
+
+class TexelGraph(NamedTuple):
+    """4-neighbour pairs of guide texels on the scalp map.
+
+    Attributes:
+        pairs: (E,2) int64 indices into the guide list (texel below or right of the first).
+        back: (E,) bool, pair in the back region of the head.
+    """
+
+    pairs: Tensor
+    back: Tensor
+
+
+def texel_graph(texel_index: Tensor | np.ndarray, res: int, back_v: float = 0.45) -> TexelGraph:
+    """Neighbour pairs of the guides at flat texel indices ``texel_index`` (N,) of a res x res map.
+
+    The back region is v < ``back_v`` (v grows towards the face; the crown is at v = 0.5).
+    """
+    idx = np.asarray(torch.as_tensor(texel_index).cpu().numpy(), np.int64)
+    pos = np.full(res * res, -1, np.int64)
+    pos[idx] = np.arange(len(idx))
+    grid = pos.reshape(res, res)
+    pairs = []
+    for a, b in ((grid[:, :-1], grid[:, 1:]), (grid[:-1, :], grid[1:, :])):
+        ok = (a >= 0) & (b >= 0)
+        pairs.append(np.stack([a[ok], b[ok]], -1))
+    p = np.concatenate(pairs).reshape(-1, 2)
+    row = idx[p[:, 0]] // res if len(p) else np.zeros(0, np.int64)
+    back = (row + 0.5) / res < back_v
+    dev = texel_index.device if torch.is_tensor(texel_index) else None
+    return TexelGraph(torch.as_tensor(p, device=dev), torch.as_tensor(back, device=dev))
+
+
+def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 100.0) -> dict[str, Tensor]:
+    """Neighbour-strand smoothness of length and direction.
+
+    Args:
+        points: (N,P,3) canonical guide strands (root first).
+        graph: neighbour pairs of the guides.
+        back_weight: factor on the length term of pairs in the back region.
+
+    Returns:
+        {"smooth_length": mean over pairs of w |L_i - L_j| (metres, w = back_weight in the back, else 1),
+         "smooth_direction": mean over pairs and segments of 1 - cos(t_i, t_j)}.
+    """
+    if graph.pairs.numel() == 0:
+        zero = points.sum() * 0.0
+        return {"smooth_length": zero, "smooth_direction": zero}
+    seg = points[:, 1:] - points[:, :-1]                                    # (N,P-1,3)
+    length = seg.norm(dim=-1).sum(-1)                                       # (N,)
+    i, j = graph.pairs[:, 0], graph.pairs[:, 1]
+    w = torch.where(graph.back, torch.full_like(length[i], back_weight), torch.ones_like(length[i]))
+    t = seg / seg.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    cos = (t[i] * t[j]).sum(-1)                                             # (E,P-1)
+    return {"smooth_length": (w * (length[i] - length[j]).abs()).mean(),
+            "smooth_direction": (1.0 - cos).mean()}
+
+
+def pca_consistency_loss(z: Tensor, hair: Tensor, observed: Tensor) -> Tensor:
+    """Consistency of unobserved texels' PCA coefficients with their neighbours.
+
+    Args:
+        z: (K,R,R) coefficient map (whitened units).
+        hair: (R,R) bool, hair-bearing texels.
+        observed: (R,R) bool, texels seen in some keyframe.
+
+    Returns:
+        Scalar: mean over unobserved hair texels of mean_k (z - zbar)^2, zbar the mean of the
+        hair-bearing 8-neighbours (observed ones detached); 0 when every texel is observed.
+    """
+    h = hair.to(z.dtype)
+    src = torch.where(observed[None], z.detach(), z) * h[None]
+    kernel = torch.ones(1, 1, 3, 3, dtype=z.dtype, device=z.device)
+    kernel[0, 0, 1, 1] = 0.0
+    num = F.conv2d(src[:, None], kernel, padding=1)[:, 0]                  # (K,R,R)
+    den = F.conv2d(h[None, None], kernel, padding=1)[0, 0]                  # (R,R)
+    zbar = num / den.clamp_min(1.0)
+    target = hair & ~observed & (den > 0)
+    if not bool(target.any()):
+        return z.sum() * 0.0
+    return (z - zbar)[:, target].pow(2).mean()
+
+
+def motion_loss(offsets: Tensor) -> Tensor:
+    """Mean squared offset. offsets: (...,3) metres -> scalar (m^2)."""
+    return offsets.pow(2).sum(-1).mean()

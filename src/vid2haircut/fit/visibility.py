@@ -1,0 +1,80 @@
+"""Visibility-aware updates: the gradient of keyframe t reaches only the canonical segments visible in t.
+
+All keyframes are rendered in one batch from per-frame copies of the canonical points. A
+:class:`VisibilityGate` sits between the canonical points and their per-frame copies: it is the
+identity in the forward pass, and in the backward pass multiplies the gradient of each frame's
+copy by that frame's visibility of every point. The visibility is the renderer's per-segment
+visibility of the *same* forward pass (set with :meth:`VisibilityGate.set_visibility` after the
+render, read during backward), so the mask is never a step late. A point counts as visible in a
+frame when one of its two adjacent segments is.
+
+Only the image terms pass through the gate; geometry terms (penetration, smoothness, PCA
+consistency) act on the un-gated canonical points, so invisible segments move only through them
+and the codec prior.
+
+Example::
+
+    gate = VisibilityGate()
+    per_frame = gate(canonical[None].expand(B, -1, -1, -1))      # (B,N,P,3), identity forward
+    out = render_strands(deform(per_frame), ...)
+    gate.set_visibility(out.visibility)                           # (B,N,P-1) bool
+    loss(out).backward()          # canonical.grad = sum_t vis_t * dL_t/dx_t
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+__all__ = ["VisibilityGate", "point_visibility", "texel_visible_fraction"]
+
+
+def point_visibility(segment_visible: Tensor) -> Tensor:
+    """(...,N,P-1) bool segment visibility -> (...,N,P) bool point visibility (either adjacent segment)."""
+    v = segment_visible.bool()
+    pad = torch.zeros_like(v[..., :1])
+    return torch.cat([v, pad], -1) | torch.cat([pad, v], -1)
+
+
+def texel_visible_fraction(segment_visible: Tensor) -> Tensor:
+    """(B,N,P-1) bool -> (B,N) float fraction of each strand's segments visible in each frame."""
+    return segment_visible.float().mean(-1)
+
+
+class _Gate(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, points: Tensor, gate: "VisibilityGate") -> Tensor:  # noqa: D401
+        ctx.gate = gate
+        return points.view_as(points)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):
+        mask = ctx.gate.mask
+        if mask is None:
+            raise RuntimeError("VisibilityGate: set_visibility() was not called before backward")
+        if mask.shape != grad.shape[:-1]:
+            raise RuntimeError(f"VisibilityGate: visibility {tuple(mask.shape)} does not match the gated points "
+                               f"{tuple(grad.shape)}")
+        return grad * mask[..., None].to(grad.dtype), None
+
+
+class VisibilityGate:
+    """Identity on per-frame points whose backward keeps only the gradient of visible points.
+
+    Attributes:
+        mask: (B,N,P) bool point visibility of the last :meth:`set_visibility` call, or None.
+        enabled: False makes the gate a plain identity (ablation "without visibility").
+    """
+
+    def __init__(self, enabled: bool = True) -> None:
+        self.enabled = bool(enabled)
+        self.mask: Tensor | None = None
+
+    def __call__(self, points: Tensor) -> Tensor:
+        """points: (B,N,P,3) per-frame copies of the canonical points -> the same values, gated."""
+        self.mask = None
+        return _Gate.apply(points, self) if self.enabled else points
+
+    def set_visibility(self, segment_visible: Tensor) -> None:
+        """Record the (B,N,P-1) bool per-segment visibility of the frames just rendered."""
+        self.mask = point_visibility(segment_visible.detach())
