@@ -132,4 +132,9 @@ def test_bad_inputs(synth_root, tmp_path):
     kf.write_text(json.dumps({"frames": [0], "reference": 0, "serial": "123"}))
     with pytest.raises(ValueError, match="camera serial '123' not in the calibration"):
         run_fit_head(synth_root, SUBJECT, SEQ, kf, tmp_path / "head")
+    kf.write_text(json.dumps({"frames": [0], "reference": 0, "serial": "222200037"}))
+    with pytest.raises(FileNotFoundError, match="nope.pkl: FLAME model file not found"):
+        run_fit_head(synth_root, SUBJECT, SEQ, kf, tmp_path / "head", head_model=str(tmp_path / "nope.pkl"))
+    with pytest.raises(ValueError, match="unknown head model 'proxy-v9'"):
+        run_fit_head(synth_root, SUBJECT, SEQ, kf, tmp_path / "head", head_model="proxy-v9")
     assert not (tmp_path / "head").exists()

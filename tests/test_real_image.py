@@ -165,3 +165,25 @@ def test_input_errors(tmp_path, astronaut):
     with pytest.raises(ValueError, match=r"cam_1.mp4: unreadable video"):
         run_keyframes(root2, "astro", "PHOTO", tmp_path / "kf")
     assert not (tmp_path / "kf").exists()
+
+
+def test_cli_modules(tmp_path, astronaut):
+    """The three sub-command modules parse and run (registered on a local parser)."""
+    import argparse
+
+    from vid2haircut.cli import fit_head, keyframes, targets
+
+    root = make_photo_sequence(tmp_path / "data", [astronaut])
+    parser = argparse.ArgumentParser()
+    sub = parser.add_subparsers(dest="command", required=True)
+    for mod in (keyframes, fit_head, targets):
+        mod.register(sub)
+    common = ["--dataset-root", str(root), "--subject", "astro", "--sequence", "PHOTO"]
+    out = tmp_path / "res"
+    for argv in (["keyframes", *common, "--out", str(out / "kf"), "--num-keyframes", "1"],
+                 ["fit_head", *common, "--out", str(out / "head"), "--keyframes", str(out / "kf" / "keyframes.json")],
+                 ["targets", *common, "--out", str(out / "tg"), "--head", str(out / "head" / "head.npz"),
+                  "--depth-source", "none"]):
+        args = parser.parse_args(argv)
+        assert args.func(args) == 0
+    assert (out / "tg" / "frame_00000.npz").is_file()

@@ -13,6 +13,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_sequence_args(p)
     p.add_argument("--keyframes", required=True, help="keyframes.json of the keyframes stage")
     p.add_argument("--head-model", default="proxy-v1", help="head model name or FLAME .pkl path")
+    p.add_argument("--landmark-embedding", default=None,
+                   help="FLAME landmark embedding (.npz/.pkl with lmk_face_idx, lmk_b_coords)")
     p.add_argument("--landmarks", default="auto", choices=["auto", "file", "detect"],
                    help="landmark source: the sequence's landmark file, MediaPipe detection, or auto")
     p.add_argument("--use-tracking", action="store_true",
@@ -28,5 +30,6 @@ def run(args: argparse.Namespace) -> int:
 
     run_fit_head(args.dataset_root, args.subject, args.sequence, args.keyframes, args.out, serial=args.serial,
                  head_model=args.head_model, use_tracking=args.use_tracking, landmark_source=args.landmarks,
-                 cfg=PoseFitConfig(fit_scale=args.fit_scale), min_frames=args.min_frames)
+                 cfg=PoseFitConfig(fit_scale=args.fit_scale), min_frames=args.min_frames,
+                 landmark_embedding=args.landmark_embedding)
     return 0

@@ -20,6 +20,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     add_sequence_args(p)
     p.add_argument("--num-keyframes", type=int, default=6, help="number of keyframes M (>= 1)")
     p.add_argument("--head-model", default="proxy-v1", help="head model name or FLAME .pkl path")
+    p.add_argument("--landmark-embedding", default=None,
+                   help="FLAME landmark embedding (.npz/.pkl with lmk_face_idx, lmk_b_coords)")
     p.add_argument("--landmarks", default="auto", choices=["auto", "file", "detect"],
                    help="landmark source: the sequence's landmark file, MediaPipe detection, or auto")
     p.add_argument("--blur-ratio", type=float, default=0.35,
@@ -33,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     from vid2haircut.front.stages import run_keyframes
 
     run_keyframes(args.dataset_root, args.subject, args.sequence, args.out, serial=args.serial,
-                  head_model=args.head_model,
+                  head_model=args.head_model, landmark_embedding=args.landmark_embedding,
                   cfg=KeyframeConfig(num_keyframes=args.num_keyframes, max_candidates=args.max_candidates,
                                      blur_ratio=args.blur_ratio, landmark_source=args.landmarks))
     return 0

@@ -12,16 +12,20 @@ from vid2haircut.front.targets.orientation import orientation_colour
 
 
 def _label(img: np.ndarray, text: str, colour=(255, 255, 255)) -> None:
+    """Write ``text`` in the top-left corner (white on a black outline), in place."""
     import cv2
 
-    scale = max(0.35, img.shape[1] / 512.0 * 0.6)
-    th = max(1, int(round(scale * 2)))
-    cv2.putText(img, text, (4, int(18 * scale / 0.6)), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), th + 2, cv2.LINE_AA)
-    cv2.putText(img, text, (4, int(18 * scale / 0.6)), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, th, cv2.LINE_AA)
+    scale = max(0.4, img.shape[1] / 640.0)
+    th = max(1, int(round(scale)))
+    y = int(round(16 * scale / 0.4))
+    cv2.putText(img, text, (4, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), th + 2, cv2.LINE_AA)
+    cv2.putText(img, text, (4, y), cv2.FONT_HERSHEY_SIMPLEX, scale, colour, th, cv2.LINE_AA)
 
 
-def grid(tiles: list[np.ndarray], columns: int | None = None, tile_width: int = 256) -> np.ndarray:
-    """Lay out RGB tiles (resized to ``tile_width`` wide, same aspect) on a grid -> (H, W, 3) uint8."""
+def grid(tiles: list[np.ndarray], columns: int | None = None, tile_width: int = 256,
+         labels: list[str] | None = None) -> np.ndarray:
+    """Lay out RGB tiles (resized to ``tile_width`` wide, the first tile's aspect) on a grid, each
+    with its optional label -> (H, W, 3) uint8."""
     import cv2
 
     if not tiles:
@@ -33,7 +37,10 @@ def grid(tiles: list[np.ndarray], columns: int | None = None, tile_width: int = 
     sheet = np.zeros((rows * th, cols * tw, 3), np.uint8)
     for k, t in enumerate(tiles):
         r, c = divmod(k, cols)
-        sheet[r * th:(r + 1) * th, c * tw:(c + 1) * tw] = cv2.resize(t, (tw, th), interpolation=cv2.INTER_AREA)
+        tile = np.ascontiguousarray(cv2.resize(t, (tw, th), interpolation=cv2.INTER_AREA))
+        if labels is not None and labels[k]:
+            _label(tile, labels[k])
+        sheet[r * th:(r + 1) * th, c * tw:(c + 1) * tw] = tile
     return sheet
 
 
@@ -43,18 +50,17 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], highlight: int | 
     import cv2
 
     tiles = []
-    for k, (img, text) in enumerate(zip(images, labels)):
+    for k, img in enumerate(images):
         t = np.ascontiguousarray(img[..., :3]).copy()
         s = max(1, t.shape[1] // tile_width)
-        _label(t, text)
         if k == highlight:
             cv2.rectangle(t, (0, 0), (t.shape[1] - 1, t.shape[0] - 1), (255, 220, 0), 3 * s)
         tiles.append(t)
-    return grid(tiles, tile_width=tile_width)
+    return grid(tiles, tile_width=tile_width, labels=labels)
 
 
 def head_overlay(image: np.ndarray, camera, world_from_head: np.ndarray, head, landmarks_2d: np.ndarray | None,
-                 landmarks_head: np.ndarray, label: str = "", crop: bool = True) -> np.ndarray:
+                 landmarks_head: np.ndarray, crop: bool = True) -> np.ndarray:
     """Fitted head over one frame: mesh wireframe (front-facing edges), observed landmarks (red),
     projected model landmarks (green).
 
@@ -98,8 +104,6 @@ def head_overlay(image: np.ndarray, camera, world_from_head: np.ndarray, head, l
             y1 = int(min(out.shape[0], np.ceil(c[1] + half)))
             if x1 - x0 > 8 and y1 - y0 > 8:
                 out = np.ascontiguousarray(out[y0:y1, x0:x1])
-    if label:
-        _label(out, label)
     return out
 
 

@@ -14,10 +14,12 @@
     inliers               (M, 68) bool landmarks used by the fit
     source                () str    "landmarks" (fitted) or "tracking" (tracking/head_tracking.npz)
     serial                () str    camera serial
+    landmark_embedding    () str    FLAME landmark embedding path ("" for built-in heads)
 """
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +27,14 @@ import numpy as np
 from vid2haircut.front.pose import SHAPE_NAMES, HeadFit
 
 
-def resolve_head(spec: str, shape: np.ndarray | None = None):
-    """Head model from a name ("proxy-v1") or a FLAME model file path; optional shape factors.
+def resolve_head(spec: str, shape: np.ndarray | None = None, landmark_embedding: str | None = None):
+    """Head model from a name ("proxy-v1") or a user-supplied FLAME model file path.
 
-    Shape factors are passed on to the built-in proxy; a FLAME head is used at its own shape.
+    Args:
+        spec: built-in head name, or the path of a FLAME ``.pkl`` (used at its template shape).
+        shape: optional (scale, width, depth) factors, passed on to the built-in proxy.
+        landmark_embedding: FLAME only: the ``.npz`` / ``.pkl`` landmark embedding giving its 68
+            iBUG landmarks (``lmk_face_idx``, ``lmk_b_coords``).
     """
     from vid2haircut.head import HEAD_NAMES, get_head
 
@@ -41,18 +47,28 @@ def resolve_head(spec: str, shape: np.ndarray | None = None):
     if p.suffix == ".pkl" or p.is_file():
         if not p.is_file():
             raise FileNotFoundError(f"{p}: FLAME model file not found")
-        from vid2haircut.head import load_flame
-
-        return load_flame(p).as_head_model()
+        return _flame_head(str(p), landmark_embedding or None)
     raise ValueError(f"unknown head model {spec!r} (known: {', '.join(HEAD_NAMES)}, or a FLAME .pkl path)")
 
 
-def base_landmarks(spec: str) -> np.ndarray:
+@functools.lru_cache(maxsize=4)
+def _flame_head(path: str, landmark_embedding: str | None):
+    from vid2haircut.head import load_flame
+
+    return load_flame(path).as_head_model(landmark_embedding=landmark_embedding)
+
+
+def base_landmarks(spec: str, landmark_embedding: str | None = None) -> np.ndarray:
     """(68, 3) float64 landmarks of the head model at shape factors 1 (head frame, metres)."""
-    return np.asarray(resolve_head(spec).landmarks, dtype=np.float64)
+    lm = resolve_head(spec, landmark_embedding=landmark_embedding).landmarks
+    if lm is None:
+        raise ValueError(f"{spec}: the head model has no landmarks (a FLAME model needs its landmark "
+                         "embedding file, e.g. --landmark-embedding landmark_embedding.npz)")
+    return np.asarray(lm, dtype=np.float64)
 
 
-def save_head_fit(path: str | Path, fit: HeadFit, serial: str, source: str = "landmarks") -> None:
+def save_head_fit(path: str | Path, fit: HeadFit, serial: str, source: str = "landmarks",
+                  landmark_embedding: str | None = None) -> None:
     """Write ``head.npz`` atomically (keys in the module docstring)."""
     from vid2haircut.io.atomic import write_npz
 
@@ -61,11 +77,12 @@ def save_head_fit(path: str | Path, fit: HeadFit, serial: str, source: str = "la
               world_from_head=np.asarray(fit.world_from_head, np.float64),
               reprojection_error_px=np.asarray(fit.reprojection_error_px, np.float64),
               landmarks_2d=np.asarray(fit.landmarks_2d, np.float32),
-              inliers=np.asarray(fit.inliers, bool), source=np.array(source), serial=np.array(str(serial)))
+              inliers=np.asarray(fit.inliers, bool), source=np.array(source), serial=np.array(str(serial)),
+              landmark_embedding=np.array(str(landmark_embedding or "")))
 
 
 def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
-    """Read ``head.npz`` -> (HeadFit, {"source", "serial"}); errors name the file."""
+    """Read ``head.npz`` -> (HeadFit, {"source", "serial", "landmark_embedding"}); errors name the file."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: head fit file not found")
@@ -86,4 +103,5 @@ def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
                   reprojection_error_px=d["reprojection_error_px"].astype(np.float64),
                   inliers=d.get("inliers", np.ones((m, 68), bool)).astype(bool),
                   landmarks_2d=d.get("landmarks_2d", np.full((m, 68, 2), np.nan, np.float32)).astype(np.float32))
-    return fit, {"source": str(d.get("source", "landmarks")), "serial": str(d.get("serial", ""))}
+    return fit, {"source": str(d.get("source", "landmarks")), "serial": str(d.get("serial", "")),
+                 "landmark_embedding": str(d.get("landmark_embedding", "")) or None}

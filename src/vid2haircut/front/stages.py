@@ -32,15 +32,17 @@ def _open(dataset_root, subject, sequence, serial):
 
 def run_keyframes(dataset_root: str | Path, subject: str, sequence: str, out_dir: str | Path,
                   serial: str | None = None, head_model: str = "proxy-v1",
-                  cfg: KeyframeConfig = KeyframeConfig()) -> KeyframeSelection:
-    """Select keyframes of one sequence; write ``keyframes.json`` and ``keyframes.png``."""
+                  cfg: KeyframeConfig = KeyframeConfig(), landmark_embedding: str | None = None) -> KeyframeSelection:
+    """Select keyframes of one sequence; write ``keyframes.json`` and ``keyframes.png``.
+
+    ``head_model``: built-in name or FLAME ``.pkl`` (then ``landmark_embedding`` is needed)."""
     from vid2haircut.front.figures import contact_sheet
     from vid2haircut.front.headfile import base_landmarks
 
     out = Path(out_dir)
     seq = _open(dataset_root, subject, sequence, serial)
     try:
-        sel = select_keyframes(seq, base_landmarks(head_model), cfg)
+        sel = select_keyframes(seq, base_landmarks(head_model, landmark_embedding), cfg)
         imgs = [seq.read_image(t) for t in sel.frames]
     finally:
         seq.close()
@@ -80,7 +82,8 @@ def _fit_from_tracking(seq, frames: list[int], head_model: str, points: np.ndarr
 def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframes_json: str | Path,
                  out_dir: str | Path, serial: str | None = None, head_model: str = "proxy-v1",
                  use_tracking: bool = False, landmark_source: str = "auto",
-                 cfg: PoseFitConfig = PoseFitConfig(), min_frames: int = 1) -> HeadFit:
+                 cfg: PoseFitConfig = PoseFitConfig(), min_frames: int = 1,
+                 landmark_embedding: str | None = None) -> HeadFit:
     """Fit the head to the keyframes; write ``head.npz`` and ``head_overlay.png``.
 
     ``serial`` defaults to the one recorded in ``keyframes.json``. With ``use_tracking`` the poses
@@ -94,7 +97,7 @@ def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframe
     out = Path(out_dir)
     seq = _open(dataset_root, subject, sequence, serial or sel.serial)
     try:
-        points = base_landmarks(head_model)
+        points = base_landmarks(head_model, landmark_embedding)
         if use_tracking:
             lmk = None
             try:
@@ -109,18 +112,18 @@ def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframe
             source = "landmarks"
         log.info("head fit (%s): shape %s, reprojection error px %s", source, np.round(fit.shape, 4),
                  np.round(fit.reprojection_error_px, 2))
-        base = resolve_head(head_model)
+        base = resolve_head(head_model, landmark_embedding=landmark_embedding)
         # the shape factors are a per-axis linear map of the head frame (exact for the proxy head)
         head = SimpleNamespace(vertices=np.asarray(base.vertices, np.float64) * shape_axes(fit.shape),
                                faces=base.faces)
         pts = points * shape_axes(fit.shape)
         tiles = [head_overlay(seq.read_image(int(t)), seq.camera, fit.world_from_head[i], head,
-                              fit.landmarks_2d[i], pts, f"t={int(t)} err={fit.reprojection_error_px[i]:.2f}px")
-                 for i, t in enumerate(fit.frames)]
+                              fit.landmarks_2d[i], pts) for i, t in enumerate(fit.frames)]
+        labels = [f"t={int(t)} err={fit.reprojection_error_px[i]:.2f}px" for i, t in enumerate(fit.frames)]
     finally:
         seq.close()
-    write_image(out / "head_overlay.png", grid(tiles))
-    save_head_fit(out / "head.npz", fit, seq.serial, source)
+    write_image(out / "head_overlay.png", grid(tiles, labels=labels))
+    save_head_fit(out / "head.npz", fit, seq.serial, source, landmark_embedding)
     return fit
 
 
@@ -136,7 +139,8 @@ def run_targets(dataset_root: str | Path, subject: str, sequence: str, head_npz:
     seq = _open(dataset_root, subject, sequence, serial or extra["serial"] or None)
     try:
         targets, summary = compute_targets(seq, fit, mask_source=mask_source,
-                                           depth_cfg=DepthConfig(source=depth_source), device=device)
+                                           depth_cfg=DepthConfig(source=depth_source), device=device,
+                                           landmark_embedding=extra["landmark_embedding"])
     finally:
         seq.close()
     write_targets(out_dir, targets, summary)

@@ -165,6 +165,18 @@ class PriorNet(nn.Module):
         nn.init.zeros_(self.head.bias)
         self.z_bias = nn.Parameter(torch.zeros(cfg.k, cfg.map_res, cfg.map_res))
         self.mask_bias = nn.Parameter(torch.zeros(cfg.map_res, cfg.map_res))
+        # training-set statistics (baselines, initialisation): mean target map and mean mask
+        self.register_buffer("train_mean_z", torch.zeros(cfg.k, cfg.map_res, cfg.map_res))
+        self.register_buffer("train_mean_mask", torch.zeros(cfg.map_res, cfg.map_res))
+
+    def set_training_means(self, mean_z: torch.Tensor, mean_mask: torch.Tensor) -> None:
+        """Store the training set's mean map (K,R,R) and mean mask (R,R) and start the bias maps there."""
+        with torch.no_grad():
+            self.train_mean_z.copy_(mean_z)
+            self.train_mean_mask.copy_(mean_mask)
+            self.z_bias.copy_(mean_z)
+            m = mean_mask.clamp(0.02, 0.98)
+            self.mask_bias.copy_(torch.log(m / (1 - m)))
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Predict a hair map.
@@ -223,7 +235,7 @@ def load_prior(prior_dir: str | Path, device: torch.device | str | None = "cpu")
         cfg = PriorConfig.from_dict(json.loads(blob["config"]))
         net = PriorNet(cfg)
         net.load_state_dict(blob["state_dict"])
-    except (KeyError, RuntimeError, ValueError, TypeError) as exc:
+    except Exception as exc:  # noqa: BLE001 - any decoding failure is reported with the file name
         raise ValueError(f"{prior_dir / 'prior.pt'}: not a PriorNet checkpoint ({exc})") from exc
     codec = StrandCodec.load(prior_dir / "codec.npz")
     if codec.k != cfg.k:

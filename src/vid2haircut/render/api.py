@@ -102,9 +102,9 @@ def render_strands(
     log_op = math.log(opacity)
     fp = build_footprint(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame,
                          height, width, math.log(alpha_min) - log_op)
-    consts = KernelConsts(math.log(alpha_min), alpha_min, alpha_max, depth_bin, int(bins), vis_weight, shading)
+    consts = KernelConsts(log_op, alpha_min, alpha_max, depth_bin, int(bins), vis_weight, shading)
     sums, visible = composite(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G),
-                              g.dirs.reshape(G, 2), fp, B, height, width, consts, log_op, head_depth, compiled)
+                              g.dirs.reshape(G, 2), fp, B, height, width, consts, head_depth, compiled)
     return _finish(sums, visible.reshape(B, N, P - 1), g)
 
 

@@ -32,9 +32,10 @@ def _choose_rows(ncol_tiles: Tensor, need: Tensor, max_rows: int) -> int:
     """Tile height R in 1..max_rows minimising sum_g ncol_tiles_g * ceil(need_g / R) * (R + COLUMN_COST)."""
     if need.numel() == 0:
         return 1
+    hist = torch.bincount(need.clamp(max=64), weights=ncol_tiles.to(torch.float64), minlength=65)
+    n = torch.arange(65, device=need.device, dtype=torch.float64)[:, None]
     cand = torch.arange(1, max_rows + 1, device=need.device, dtype=torch.float64)
-    n = need.to(torch.float64)[:, None]
-    cost = (ncol_tiles.to(torch.float64)[:, None] * torch.ceil(n / cand) * (cand + COLUMN_COST)).sum(0)
+    cost = (hist[:, None] * torch.ceil(n / cand) * (cand + COLUMN_COST)).sum(0)
     return int(torch.argmin(cost).item()) + 1
 
 
@@ -61,7 +62,7 @@ def build_footprint(
         cols: tile width in columns; max_rows: largest tile height tried.
 
     Returns:
-        :class:`Footprint`; ``pix`` indexes a flat buffer of B * (height + 2) * (width + 2) pixels.
+        :class:`Footprint`; ``pix`` indexes a flat buffer of B * (height + 2 pad) * (width + 2 pad) pixels.
     """
     if power_min >= 0:
         raise ValueError(f"power_min must be negative (alpha_min < opacity), got {power_min}")

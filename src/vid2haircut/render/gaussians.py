@@ -23,7 +23,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from vid2haircut.render.project import check_cameras, project_camera_points, projection_jacobian, rotate_to_camera, to_camera
+from vid2haircut.render.project import check_cameras, project_camera_points, rotate_to_camera, to_camera
 from vid2haircut.render.types import Gaussians2D
 
 DEFAULT_STRAND_WIDTH = 3.5e-4
@@ -83,16 +83,27 @@ def segment_gaussians(
     mid_cam = to_camera(mid, world_2_cam)
     seg_cam = rotate_to_camera(seg, world_2_cam)
     means, depths = project_camera_points(mid_cam, K, near)
-    J = projection_jacobian(mid_cam, K, near)  # [B, S, 2, 3]
-    jd = torch.einsum("bsij,bsj->bsi", J, seg_cam)  # [B, S, 2] projected segment vector (px)
-    jj = torch.einsum("bsij,bskj->bsik", J, J)  # [B, S, 2, 2]
+    # EWA: J = Kxy @ J0, J0 = [[1/z, 0, -x/z^2], [0, 1/z, -y/z^2]] at the midpoint (explicit 2x2
+    # algebra; batched small matmuls are slow on CPU)
+    iz = 1.0 / mid_cam[..., 2].clamp_min(near)
+    X, Y = mid_cam[..., 0] * iz, mid_cam[..., 1] * iz
+    a0 = iz * (seg_cam[..., 0] - X * seg_cam[..., 2])
+    a1 = iz * (seg_cam[..., 1] - Y * seg_cam[..., 2])
+    k00, k01 = K[:, None, 0, 0], K[:, None, 0, 1]
+    k10, k11 = K[:, None, 1, 0], K[:, None, 1, 1]
+    jd = torch.stack([k00 * a0 + k01 * a1, k10 * a0 + k11 * a1], dim=-1)  # [B, S, 2] projected segment (px)
+    iz2 = iz * iz
+    m00, m01, m11 = iz2 * (1.0 + X * X), iz2 * X * Y, iz2 * (1.0 + Y * Y)  # J0 J0^T
+    r00, r01 = k00 * m00 + k01 * m01, k00 * m01 + k01 * m11  # rows of Kxy @ (J0 J0^T)
+    r10, r11 = k10 * m00 + k11 * m01, k10 * m01 + k11 * m11
+    jj00, jj01, jj11 = r00 * k00 + r01 * k01, r00 * k10 + r01 * k11, r10 * k10 + r11 * k11
 
     w2 = strand_width * strand_width
     len2 = (seg * seg).sum(-1)
     coef = 0.25 - w2 / (len2 + 1e-20)
-    sxx = w2 * jj[..., 0, 0] + coef * jd[..., 0] ** 2 + dilation
-    sxy = w2 * jj[..., 0, 1] + coef * jd[..., 0] * jd[..., 1]
-    syy = w2 * jj[..., 1, 1] + coef * jd[..., 1] ** 2 + dilation
+    sxx = w2 * jj00 + coef * jd[..., 0] ** 2 + dilation
+    sxy = w2 * jj01 + coef * jd[..., 0] * jd[..., 1]
+    syy = w2 * jj11 + coef * jd[..., 1] ** 2 + dilation
     covs = torch.stack([sxx, sxy, syy], dim=-1)
 
     n2 = (jd * jd).sum(-1) + 1e-12

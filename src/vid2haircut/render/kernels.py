@@ -28,13 +28,35 @@ from torch import Tensor
 class KernelConsts(NamedTuple):
     """Scalar settings of the element kernels."""
 
-    log_alpha_min: float
+    log_opacity: float
     alpha_min: float
     alpha_max: float
     depth_bin: float  # metres
     bins: int
     vis_weight: float
     shading: bool  # False: silhouette channel only
+
+
+class TileParams(NamedTuple):
+    """Per-tile Gaussian parameters (differentiable), each [nt]."""
+
+    mu: Tensor
+    mv: Tensor
+    quu: Tensor
+    quv: Tensor
+    qvv: Tensor
+    z: Tensor
+    c: Tensor
+    s: Tensor
+
+
+def _columns(t: TileParams, u: Tensor, vstart: Tensor, log_opacity: float):
+    """Column terms -> (du, dyc, A0, B0) each [nt, cols] and Cq [nt]."""
+    du = u - t.mu[:, None]
+    dyc = vstart - t.mv[:, None]
+    A0 = (-0.5 * t.quu[:, None]) * du * du + log_opacity
+    B0 = -t.quv[:, None] * du
+    return du, dyc, A0, B0, -0.5 * t.qvv
 
 
 def _alpha(A0: Tensor, B0: Tensor, dyc: Tensor, Cq: Tensor, z: Tensor, pix: Tensor, head: Tensor | None,
@@ -71,25 +93,27 @@ def _bin_tables(Lb: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     return ELx, F, dF
 
 
-def forward_kernel(A0: Tensor, B0: Tensor, dyc: Tensor, Cq: Tensor, z: Tensor, c: Tensor, s: Tensor,
-                   pix: Tensor, head: Tensor | None, border: Tensor, npix: int, k: KernelConsts):
+def forward_kernel(t: TileParams, u: Tensor, vstart: Tensor, pix: Tensor, head: Tensor | None, border: Tensor,
+                   npix: int, k: KernelConsts):
     """Composite all contributions into pixel sums.
 
     Args:
-        A0, B0, dyc: [nt, cols] column terms. Cq, z, c, s: [nt] tile terms.
+        t: per-tile parameters, each [nt]. u, vstart: [nt, cols] column coordinates.
         pix: [nt, cols, rows] int64 pixel index. head: [npix] head depth (+inf: none) or None.
         border: [npix] bool, True on the image padding. npix: padded pixel count.
 
     Returns:
         (sums [npix, 4] (or [npix, 1] without shading), visible_tile [nt] bool or None, saved).
     """
+    z, c, s = t.z, t.c, t.s
+    du, dyc, A0, B0, Cq = _columns(t, u, vstart, k.log_opacity)
     dy, alpha = _alpha(A0, B0, dyc, Cq, z, pix, head, k)
     flat = pix.reshape(-1)
     nla = torch.log1p(alpha.neg()).neg_()  # -log(1 - alpha) >= 0
     if not k.shading:
         sums = torch.zeros(npix, 1, dtype=alpha.dtype, device=alpha.device)
         sums[:, 0].scatter_add_(0, flat, nla.reshape(-1)).neg_()
-        return sums, None, (dy, alpha)
+        return sums, None, (du, dy, alpha)
     z3 = z[:, None, None]
     # z_ref(p): nearest Gaussian whose window covers p (a lower bound of every contributing z)
     zs = z * (1.0 / k.depth_bin)
@@ -110,25 +134,27 @@ def forward_kernel(A0: Tensor, B0: Tensor, dyc: Tensor, Cq: Tensor, z: Tensor, c
     sums[2].scatter_add_(0, flat, (w * c[:, None, None]).reshape(-1))
     sums[3].scatter_add_(0, flat, (w * s[:, None, None]).reshape(-1))
     visible = (w >= k.vis_weight).flatten(1).any(1)
-    return sums.t(), visible, (dy, alpha, nla, Mel, pb, Lb)
+    return sums.t(), visible, (du, dy, alpha, nla, Mel, pb, Lb)
 
 
-def backward_kernel(grad: Tensor, B0: Tensor, Cq: Tensor, z: Tensor, c: Tensor, s: Tensor, pix: Tensor,
-                    border: Tensor, saved: tuple, npix: int, k: KernelConsts):
-    """Gradients of the pixel sums w.r.t. the kernel inputs.
+def backward_kernel(grad: Tensor, t: TileParams, pix: Tensor, border: Tensor, saved: tuple, npix: int,
+                    k: KernelConsts) -> TileParams:
+    """Gradients of the pixel sums w.r.t. the tile parameters.
 
     Args:
-        grad: [npix, 4] (or [npix, 1]) upstream gradient of ``sums``.
+        grad: [npix, 4] (or [npix, 1]) upstream gradient of ``sums``; t, pix, border, npix, k as
+            given to :func:`forward_kernel`; saved: its saved tensors.
 
     Returns:
-        (gA0, gB0, gdyc) each [nt, cols]; (gCq, gz, gc, gs) each [nt] (gz, gc, gs None without shading).
+        :class:`TileParams` of gradients, each [nt] (z, c, s None without shading).
     """
+    z, c, s = t.z, t.c, t.s
     if not k.shading:
-        dy, alpha = saved
+        du, dy, alpha = saved
         gla = grad[:, 0][pix]
         gz = gc = gs = None
     else:
-        dy, alpha, nla, Mel, pb, Lb = saved
+        du, dy, alpha, nla, Mel, pb, Lb = saved
         grad = grad.t()
         gZ, gC, gS = grad[1][pix], grad[2][pix], grad[3][pix]
         w = Mel * nla
@@ -145,9 +171,13 @@ def backward_kernel(grad: Tensor, B0: Tensor, Cq: Tensor, z: Tensor, c: Tensor, 
         H = H + (G * ELx * dF).masked_fill_(border[:, None], 0.0)
         gla = H.reshape(-1)[pb] - q * Mel
     gp = gla * (_dalpha(alpha, k) / (alpha - 1.0))
+    # power = A0 + dy (B0 + Cq dy); A0 = -q_uu du^2 / 2 + log op, B0 = -q_uv du, Cq = -q_vv / 2
     gA0 = gp.sum(2)
     gpdy = gp * dy
     gB0 = gpdy.sum(2)
     gCq = (gpdy * dy).sum((1, 2))
-    gdyc = B0 * gA0 + 2.0 * Cq[:, None] * gB0
-    return gA0, gB0, gdyc, gCq, gz, gc, gs
+    B0 = -t.quv[:, None] * du
+    gdyc = B0 * gA0 + 2.0 * (-0.5 * t.qvv)[:, None] * gB0
+    gdu = -(t.quu[:, None] * du * gA0 + t.quv[:, None] * gB0)
+    return TileParams(-gdu.sum(1), -gdyc.sum(1), -0.5 * (gA0 * du * du).sum(1), -(gB0 * du).sum(1), -0.5 * gCq,
+                      gz, gc, gs)

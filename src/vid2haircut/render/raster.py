@@ -34,26 +34,29 @@ from torch import Tensor
 
 from vid2haircut.render import kernels
 from vid2haircut.render.gaussians import conics
-from vid2haircut.render.kernels import KernelConsts
+from vid2haircut.render.kernels import KernelConsts, TileParams
 from vid2haircut.render.types import Footprint, PixelSums
 
 
 class _Composite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, A0, B0, dyc, Cq, z, c, s, pix, head, border, npix, consts, fwd, bwd):
-        sums, visible, saved = fwd(A0, B0, dyc, Cq, z, c, s, pix, head, border, npix, consts)
-        ctx.save_for_backward(B0, Cq, z, c, s, pix, border, *saved)
+    def forward(ctx, mu, mv, quu, quv, qvv, z, c, s, u, vstart, pix, head, border, npix, consts, fwd, bwd):
+        t = TileParams(mu, mv, quu, quv, qvv, z, c, s)
+        sums, visible, saved = fwd(t, u, vstart, pix, head, border, npix, consts)
+        ctx.save_for_backward(*t, pix, border, *saved)
         ctx.npix, ctx.consts, ctx.bwd = npix, consts, bwd
         if visible is None:
-            visible = torch.zeros(A0.shape[0], dtype=torch.bool, device=A0.device)
+            visible = torch.zeros(mu.shape[0], dtype=torch.bool, device=mu.device)
         ctx.mark_non_differentiable(visible)
         return sums, visible
 
     @staticmethod
     def backward(ctx, grad, _g_vis):
-        B0, Cq, z, c, s, pix, border, *saved = ctx.saved_tensors
-        out = ctx.bwd(grad.contiguous(), B0, Cq, z, c, s, pix, border, tuple(saved), ctx.npix, ctx.consts)
-        return (*out, None, None, None, None, None, None, None)
+        saved = ctx.saved_tensors
+        t = TileParams(*saved[:8])
+        pix, border = saved[8], saved[9]
+        g = ctx.bwd(grad.contiguous(), t, pix, border, tuple(saved[10:]), ctx.npix, ctx.consts)
+        return (*g, None, None, None, None, None, None, None, None, None)
 
 
 def padding_mask(batch: int, height: int, width: int, pad: int, device) -> Tensor:
@@ -78,7 +81,6 @@ def composite(
     height: int,
     width: int,
     consts: KernelConsts,
-    log_opacity: float = 0.0,
     head_depth: Tensor | None = None,  # [B, H, W]
     compiled: bool = False,
 ) -> tuple[PixelSums, Tensor]:
@@ -87,7 +89,7 @@ def composite(
     Args:
         means, covs, depths, dirs: the flattened fields of :class:`Gaussians2D` ([G, ...]).
         fp: footprint from :func:`vid2haircut.render.footprint.build_footprint`.
-        consts: kernel settings. log_opacity: log of the Gaussian peak opacity.
+        consts: kernel settings.
         head_depth: optional [B, H, W] camera z of the head (+inf where no head).
         compiled: run the element kernels through ``torch.compile`` (first call compiles).
 
@@ -95,31 +97,24 @@ def composite(
         (:class:`PixelSums` with [B, H, W] fields, visible [G] bool).
     """
     G = means.shape[0]
-    dt = means.dtype
     dev = means.device
+    dt = means.dtype
     qxx, qxy, qyy = conics(covs)
     hz = fp.horizontal
-    mu = torch.where(hz, means[:, 0], means[:, 1])
-    mv = torch.where(hz, means[:, 1], means[:, 0])
-    quu = torch.where(hz, qxx, qyy)
-    qvv = torch.where(hz, qyy, qxx)
     tg = fp.tile_gauss
-    du = fp.u.to(dt) - mu[tg, None]
-    dyc = fp.vstart.to(dt) - mv[tg, None]
-    A0 = -0.5 * quu[tg, None] * du * du + log_opacity
-    B0 = -qxy[tg, None] * du
-    Cq = -0.5 * qvv[tg]
-    z, c, s = depths[tg], dirs[tg, 0], dirs[tg, 1]
-
+    swap = lambda a, b: torch.where(hz, a, b)[tg]  # noqa: E731  (u = x where horizontal)
+    tiles = (swap(means[:, 0], means[:, 1]), swap(means[:, 1], means[:, 0]), swap(qxx, qyy), qxy[tg],
+             swap(qyy, qxx), depths[tg], dirs[tg, 0], dirs[tg, 1])
     pad = fp.pad
     npix = batch * (height + 2 * pad) * (width + 2 * pad)
     border = padding_mask(batch, height, width, pad, dev)
     head = None if head_depth is None else pad_head_depth(head_depth, pad, dt)
     fwd, bwd = _compiled() if compiled else (kernels.forward_kernel, kernels.backward_kernel)
-    sums, vis_tile = _Composite.apply(A0, B0, dyc, Cq, z, c, s, fp.pix, head, border, npix, consts, fwd, bwd)
+    sums, vis_tile = _Composite.apply(*tiles, fp.u.to(dt), fp.vstart.to(dt), fp.pix, head, border, npix, consts,
+                                      fwd, bwd)
     sums = sums.reshape(batch, height + 2 * pad, width + 2 * pad, -1)[:, pad:-pad, pad:-pad]
     log_t = sums[..., 0]
-    weight = -torch.expm1(log_t)
+    weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
     visible = torch.zeros(G, dtype=torch.bool, device=dev)
     if not consts.shading:
         zeros = torch.zeros_like(log_t)

@@ -6,7 +6,7 @@ import numpy as np
 
 from .hair_sdf import HeadSDF
 
-__all__ = ["lift_roots", "project_out", "follow_the_leader", "resolve_collisions"]
+__all__ = ["lift_roots", "project_out", "resolve_collisions"]
 
 
 def lift_roots(sdf: HeadSDF, points: np.ndarray, normals: np.ndarray, clearance: float = 2e-4,
@@ -47,67 +47,50 @@ def project_out(sdf: HeadSDF, x: np.ndarray, margin: float | np.ndarray) -> tupl
     return out, 0
 
 
-def follow_the_leader(points: np.ndarray, seg_len: np.ndarray) -> np.ndarray:
-    """Restore segment lengths (N,P-1) root to tip, keeping each segment's current direction.
+def resolve_collisions(sdf: HeadSDF, points: np.ndarray, margin: float = 1e-3,
+                       root_slope: float = 0.5, max_final: int = 8) -> np.ndarray:
+    """Push strands (N,P,3) out of the head, keeping segment lengths (follow-the-leader).
 
-    Args:
-        points: (N,P,3) strands; the roots stay fixed.
-        seg_len: (N,P-1) target segment lengths.
+    Strands are rebuilt from root to tip, all at once: each point is put at its original segment
+    length from the (already fixed) previous point, in the direction of its original position;
+    if that lands closer than the margin to the head it is pushed out along the SDF gradient and
+    the segment length restored. As each step starts outside the head and moves by one segment,
+    a strand can never tunnel through thin parts (neck, ears). A final projection (without length
+    restoration) makes every non-root point's signed distance >= 1e-5. Roots are not moved.
 
-    Returns:
-        (N,P,3) float64 strands with exactly those segment lengths.
-    """
-    x = np.asarray(points, np.float64).copy()
-    for k in range(1, x.shape[1]):
-        v = x[:, k] - x[:, k - 1]
-        nv = np.linalg.norm(v, axis=-1, keepdims=True)
-        x[:, k] = x[:, k - 1] + np.where(nv > 1e-12, v / np.maximum(nv, 1e-12), 0.0) * seg_len[:, k - 1:k]
-    return x
-
-
-def resolve_collisions(sdf: HeadSDF, points: np.ndarray, margin: float = 1e-3, iters: int = 3,
-                       max_final: int = 8, root_slope: float = 0.5) -> np.ndarray:
-    """Push strands (N,P,3) out of the head, keeping segment lengths roughly constant.
-
-    ``iters`` rounds of (projection of all non-root points to their margin outside the head, then
-    follow-the-leader length restoration), then projection alone until every non-root point has
-    a signed distance >= 1e-5 (at most ``max_final`` rounds). Roots are not moved. The margin is
-    ``margin`` except near the root, where it grows from 0.2 mm by ``root_slope`` per metre of
-    arc length (a strand necessarily leaves the scalp gradually).
-
-    Only points that may have come close are looked up again: a point whose distance at the
-    last full evaluation, minus how far it has moved since, is still above its margin is skipped
-    (the distance is 1-Lipschitz).
+    The margin is ``margin`` except near the root, where it grows from 0.2 mm by ``root_slope``
+    per metre of arc length (a strand leaves the scalp gradually).
 
     Returns:
         (N,P,3) float64 strands.
     """
-    x = np.asarray(points, np.float64).copy()
+    x = np.asarray(points, np.float64)
     n, p, _ = x.shape
-    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)
-    marg = np.minimum(margin, 2e-4 + root_slope * np.cumsum(seg, axis=1)).reshape(-1)  # (N*(P-1),)
-    ref = x[:, 1:].reshape(-1, 3).copy()
-    d_ref = sdf.lower_bound(ref)
-
-    def project(final: bool) -> int:
-        body = x[:, 1:].reshape(-1, 3)
-        thr = np.full_like(marg, 1e-5) if final else marg
-        moved_by = np.linalg.norm(body - ref, axis=-1)
-        cand = np.nonzero(d_ref - moved_by < thr + 1e-6)[0]
-        if len(cand) == 0:
-            return 0
-        if final:                                     # only points below the final threshold
-            hit, _ = sdf.near(body[cand], 1e-5)
-            cand = cand[hit]
-        body[cand], moved = project_out(sdf, body[cand], marg[cand])
-        x[:, 1:] = body.reshape(n, p - 1, 3)
-        return moved
-
-    for _ in range(iters):
-        if project(False) == 0:
-            return x
-        x[:] = follow_the_leader(x, seg)
+    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)                       # (N,P-1)
+    marg = np.minimum(margin, 2e-4 + root_slope * np.cumsum(seg, axis=1))   # (N,P-1)
+    out = np.empty_like(x)
+    out[:, 0] = x[:, 0]
+    for k in range(1, p):
+        prev = out[:, k - 1]
+        v = x[:, k] - prev
+        nv = np.linalg.norm(v, axis=-1, keepdims=True)
+        cand = prev + np.where(nv > 1e-12, v / np.maximum(nv, 1e-12), 0.0) * seg[:, k - 1:k]
+        hit, _ = sdf.near(cand, margin)
+        if len(hit):
+            d, g = sdf.value_and_grad(cand[hit])
+            push = marg[hit, k - 1] - d
+            sel = push > 0
+            hit, push, g = hit[sel], push[sel], g[sel]
+            moved = cand[hit] + push[:, None] * g
+            w = moved - prev[hit]
+            nw = np.linalg.norm(w, axis=-1, keepdims=True)
+            cand[hit] = prev[hit] + w / np.maximum(nw, 1e-12) * seg[hit, k - 1:k]
+        out[:, k] = cand
     for _ in range(max_final):
-        if project(True) == 0:
+        body = out[:, 1:].reshape(-1, 3)
+        hit, _ = sdf.near(body, 1e-5)
+        if len(hit) == 0:
             break
-    return x
+        body[hit], _ = project_out(sdf, body[hit], np.minimum(marg.reshape(-1)[hit], 1e-4) + 1e-5)
+        out[:, 1:] = body.reshape(n, p - 1, 3)
+    return out

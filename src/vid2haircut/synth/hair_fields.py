@@ -183,14 +183,14 @@ def comb_direction(x: np.ndarray, normal: np.ndarray, p: HairParams, fringe_w: n
 
     A blend of: flow away from the crown whorl (``crown`` (3,), the top of the head moved to
     ``p.crown_z``), sideways flow away from the parting line and backward flow (both on the
-    front-top of the head), a downward pull, and for fringe strands (weight ``fringe_w`` (N,)) a
+    front-top of the head), a downward and a slight backward pull, and for fringe strands (weight ``fringe_w`` (N,)) a
     forward-and-down flow.
 
     Returns:
         (N,3) unit vectors orthogonal to ``normal``.
     """
     radial = x - np.array([crown[0], crown[1], p.crown_z])
-    radial /= np.maximum(np.linalg.norm(radial, axis=-1, keepdims=True), 0.01)
+    radial /= np.maximum(np.linalg.norm(radial, axis=-1, keepdims=True), 0.03)   # fades at the whorl
     top_front = smoothstep(p.crown_z - 0.01, p.crown_z + 0.04, x[:, 2]) * smoothstep(-0.01, 0.04, x[:, 1])
     side = np.tanh((x[:, 0] - p.part_x) / 0.006)
     fw = fringe_w[:, None]
@@ -199,7 +199,7 @@ def comb_direction(x: np.ndarray, normal: np.ndarray, p: HairParams, fringe_w: n
         p.part_weight * side[:, None] * np.array([1.0, 0.0, 0.0])
         + p.back_weight * np.array([0.0, 0.0, -1.0]))
     c = c + fw * np.array([0.0, -0.4, 1.0]) * 2.0
-    c = c + p.down_weight * np.array([0.0, -1.0, 0.0])
+    c = c + p.down_weight * np.array([0.0, -1.0, 0.0]) + 0.2 * np.array([0.0, 0.0, -1.0])
     c = c - (c * normal).sum(-1, keepdims=True) * normal
     norm = np.linalg.norm(c, axis=-1, keepdims=True)
     fallback = np.array([0.0, -1.0, -1.0]) - (normal @ np.array([0.0, -1.0, -1.0]))[:, None] * normal

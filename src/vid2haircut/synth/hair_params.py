@@ -145,7 +145,7 @@ FAMILY_PARAMS: dict[str, HairParams] = {
                                  "back_weight": 0.25}, cut_front=-0.1, cut_side=-0.12,
                               cut_back=-0.13, cut_jitter=0.008),
     "bangs": HairParams(**_MEDIUM, cut_front=-0.22, cut_side=-0.24, cut_back=-0.25,
-                        cut_jitter=0.012, fringe=1.0),
+                        cut_jitter=0.012, fringe=1.0, fringe_depth=0.8),
     "afro": HairParams(l_top=0.16, l_front=0.12, l_side=0.13, l_back=0.13, part_weight=0.0,
                        back_weight=0.2, radial_weight=1.0, lift=1.0, gravity=4.0,
                        comb_strength=20.0, volume=0.35, max_offset=0.07, curl="helix",

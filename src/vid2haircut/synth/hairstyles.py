@@ -108,7 +108,7 @@ def generate_hairstyle(family: str, seed: int, head=None, n_strands: int = 10000
     pts = resolve_collisions(sdf, pts, margin=p.collision_margin)
     pts, cut = truncate_at_face(pts, zone)                 # collisions may push hair onto the face
     if len(cut):
-        pts[cut] = resolve_collisions(sdf, pts[cut], margin=p.collision_margin, iters=0)
+        pts[cut] = resolve_collisions(sdf, pts[cut], margin=p.collision_margin)
 
     _, colors = sample_colors(p.palette, n, r_col)
     return StrandSet(pts.astype(np.float32), {"color": colors, "uv": roots.uv},

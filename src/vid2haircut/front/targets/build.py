@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from pathlib import Path
 from typing import NamedTuple
@@ -46,22 +47,23 @@ class FrameTargets(NamedTuple):
     mask_source: str
 
 
-def frame_landmarks(fit: HeadFit, i: int, camera) -> np.ndarray:
+def frame_landmarks(fit: HeadFit, i: int, camera, landmark_embedding: str | None = None) -> np.ndarray:
     """(68, 2) landmarks of fitted frame i: observed where finite, else the fitted projection."""
     from vid2haircut.front.headfile import base_landmarks
 
     obs = np.asarray(fit.landmarks_2d[i], np.float64)
     if np.isfinite(obs).all():
         return obs
-    pts = base_landmarks(fit.head_model) * shape_axes(fit.shape)
+    pts = base_landmarks(fit.head_model, landmark_embedding) * shape_axes(fit.shape)
     proj = project_landmarks(camera, fit.world_from_head[i:i + 1], pts)[0]
     return np.where(np.isfinite(obs), obs, proj)
 
 
-def hair_mask(seq, t: int, lmk: np.ndarray, source: str = "auto",
+def hair_mask(seq, t: int, lmk, source: str = "auto",
               cfg: MaskConfig = MaskConfig()) -> tuple[np.ndarray, str]:
     """Hair mask of frame t -> ((H, W) float32, "hair_masks" | "fallback").
 
+    lmk: (68, 2) landmarks, or a callable returning them (only called for the fallback).
     source: "auto" (the sequence's hair_masks when present, else the fallback), "file", "fallback".
     """
     if source not in ("auto", "file", "fallback"):
@@ -72,13 +74,17 @@ def hair_mask(seq, t: int, lmk: np.ndarray, source: str = "auto",
             return m.astype(np.float32), "hair_masks"
         if source == "file":
             raise FileNotFoundError(f"{seq.root / 'hair_masks' / f'cam_{seq.serial}'}: no hair mask for frame {t}")
+    lmk = lmk() if callable(lmk) else lmk
     return hair_mask_fallback(seq.read_image(t), lmk, seq.read_alpha(t), cfg), "fallback"
 
 
 def compute_targets(seq, fit: HeadFit, mask_source: str = "auto", depth_cfg: DepthConfig = DepthConfig(),
                     gabor_cfg: GaborConfig = GaborConfig(), mask_cfg: MaskConfig = MaskConfig(),
-                    device: str | None = None) -> tuple[list[FrameTargets], dict]:
+                    device: str | None = None,
+                    landmark_embedding: str | None = None) -> tuple[list[FrameTargets], dict]:
     """Targets of every fitted keyframe of an open sequence.
+
+    ``landmark_embedding`` is only needed for a FLAME head whose landmarks were not observed.
 
     Returns:
         (list of :class:`FrameTargets` in ``fit.frames`` order, summary dict for targets.json).
@@ -87,7 +93,8 @@ def compute_targets(seq, fit: HeadFit, mask_source: str = "auto", depth_cfg: Dep
     masks, sources, images = {}, {}, {}
     for i, t in enumerate(frames):
         images[t] = seq.read_image(t)
-        masks[t], sources[t] = hair_mask(seq, t, frame_landmarks(fit, i, seq.camera), mask_source, mask_cfg)
+        lmk = functools.partial(frame_landmarks, fit, i, seq.camera, landmark_embedding)
+        masks[t], sources[t] = hair_mask(seq, t, lmk, mask_source, mask_cfg)
         if masks[t].max() < 0.5:
             log.warning("frame %d: empty hair mask (%s)", t, sources[t])
     depths, depth_src = depth_targets(seq, frames, fit.world_from_head, masks, depth_cfg)

@@ -174,7 +174,8 @@ def depth_targets(seq, keyframes: list[int], world_from_head: np.ndarray, masks:
             return {t: normalise_depth(raw[t][0], raw[t][1], masks[t], cfg.quantiles) for t in keyframes}, "maps"
         if cfg.source == "maps":
             missing = [t for t, r in raw.items() if r is None]
-            raise FileNotFoundError(f"{seq.root / 'depth_maps' / f'cam_{seq.serial}'}: no depth map for frames {missing}")
+            folder = seq.root / "depth_maps" / f"cam_{seq.serial}"
+            raise FileNotFoundError(f"{folder}: no depth map for frames {missing}")
     if len(keyframes) >= 2:
         sparse = triangulated_depth(seq, keyframes, world_from_head, masks, cfg)
         if any(v.sum() >= 2 for _, v in sparse.values()):

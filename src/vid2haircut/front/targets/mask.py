@@ -172,7 +172,8 @@ def hair_mask_fallback(image: np.ndarray, lmk: np.ndarray, alpha: np.ndarray | N
     if not seed.any():
         return np.zeros((h, w), np.float32)
     # candidates: the rest of F; below the chin only in the columns the seed hair reaches
-    cols = cv2.dilate(seed.any(axis=0).astype(np.uint8)[None], np.ones((1, 2 * max(1, int(0.05 * fw)) + 1), np.uint8))[0] > 0
+    widen = np.ones((1, 2 * max(1, int(0.05 * fw)) + 1), np.uint8)
+    cols = cv2.dilate(seed.any(axis=0).astype(np.uint8)[None], widen)[0] > 0
     cand = fg & ~seed & ~face & ~neck & (~below_chin | cols[None, :])
     labels = np.full((h, w), cv2.GC_BGD, np.uint8)
     labels[cand] = cv2.GC_PR_FGD

@@ -4,6 +4,8 @@ Conventions:
 - ``angle`` (H, W) float32 in [0, pi): the undirected 2D hair direction at each pixel, as the
   image-plane vector (cos a, sin a) in pixel axes (x right, y down). a = 0 is horizontal,
   a = pi/2 is vertical (along +y, i.e. downwards on screen).
+- filter energy F_i: the magnitude of the quadrature pair (cosine + sine Gabor) response, which
+  does not depend on where in a stripe the pixel lies (``quadrature=False``: |cosine response|).
 - ``confidence`` (H, W) float32 in [0, 1]: 1 - V / V_uniform, where
   V = sum_i d(a_hat, a_i)^2 F_i / sum_i F_i is the response-weighted angular variance of the bank
   around the winning angle (d wrapped to [-pi/2, pi/2)), F_i the filter energy above the
@@ -41,6 +43,9 @@ class GaborConfig:
     """carrier frequency, cycles per pixel."""
     dog_sigmas: tuple[float, float] = (0.4, 10.0)
     """difference-of-Gaussians pre-filter (fine, coarse); None-like (0, 0) disables it."""
+    quadrature: bool = True
+    """filter energy = |cos + i sin response| (phase invariant); False: |cos response| only, as in
+    Neural Haircut (biased towards stripe phases)."""
     tile: int = 256
     """image tile edge (px) processed at once; bounds memory to n_orientations * (tile+2r)^2."""
 
@@ -55,11 +60,12 @@ class OrientationMap(NamedTuple):
 
 def gabor_bank(cfg: GaborConfig, device: torch.device | str | None = None,
                dtype: torch.dtype = torch.float32) -> tuple[torch.Tensor, torch.Tensor]:
-    """Build the zero-mean cosine Gabor bank.
+    """Build the zero-mean cosine Gabor bank (plus the sine partners when ``cfg.quadrature``).
 
     Returns:
-        kernels: (n, 1, k, k) with k = 2 * ceil(3 * max sigma) + 1; kernel i responds to strands
-            with direction angle ``angles[i]`` (stripes along that direction).
+        kernels: (n, 1, k, k) — or (2n, 1, k, k), cosine kernels first, with quadrature — with
+            k = 2 * ceil(3 * max sigma) + 1; kernel i responds to strands with direction angle
+            ``angles[i]`` (stripes along that direction).
         angles: (n,) filter angles in [0, pi).
     """
     r = int(math.ceil(3.0 * max(cfg.sigma_across, cfg.sigma_along)))
@@ -73,7 +79,10 @@ def gabor_bank(cfg: GaborConfig, device: torch.device | str | None = None,
     carrier = torch.cos(2.0 * math.pi * cfg.frequency * across)
     dc = (env * carrier).sum(dim=(1, 2), keepdim=True) / env.sum(dim=(1, 2), keepdim=True)
     k = env * (carrier - dc)  # exactly zero-mean: no response to flat regions
-    k = k / k.abs().sum(dim=(1, 2), keepdim=True)
+    norm = k.abs().sum(dim=(1, 2), keepdim=True).mean()  # one constant: per-angle norms would bias angles
+    k = k / norm
+    if cfg.quadrature:  # odd (sine) partners, same envelope and scale
+        k = torch.cat([k, env * torch.sin(2.0 * math.pi * cfg.frequency * across) / norm])
     return k[:, None].to(device=device, dtype=dtype), angles.to(device=device, dtype=dtype)
 
 
@@ -176,7 +185,8 @@ def orientation_map(image: np.ndarray, mask: np.ndarray | None = None, cfg: Gabo
         for tx in range(0, bw, t):
             ty1, tx1 = min(bh, ty + t), min(bw, tx + t)
             patch = padded[:, :, oy + ty:oy + ty1 + 2 * r, ox + tx:ox + tx1 + 2 * r]
-            resp = F.conv2d(patch, kernels)[0].abs_()  # (n, th, tw)
+            resp = F.conv2d(patch, kernels)[0]  # (n or 2n, th, tw)
+            resp = torch.hypot(resp[:n], resp[n:]) if cfg.quadrature else resp.abs_()
             best_val, best = resp.max(dim=0)
             low = resp.min(dim=0).values
             total = resp.sum(dim=0)

@@ -1,0 +1,98 @@
+"""Guide strands of a hair map, rendered into the keyframes, compared with the targets.
+
+Shared by both stages: which texels carry a guide (:class:`GuideLayout`), decoding the guides of
+a coefficient map with gradients (:func:`decode_layout`), rendering B keyframes
+(:func:`render_frames`) and the image loss terms (:func:`image_losses`).
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from vid2haircut.fit.config import RenderSettings
+from vid2haircut.fit.data import FitData
+from vid2haircut.fit.losses import TexelGraph, depth_loss, direction_loss, silhouette_loss, texel_graph
+from vid2haircut.prior.codec import StrandCodec
+from vid2haircut.prior.scalp import scalp_grid
+from vid2haircut.render import StrandRender, render_strands
+
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses"]
+
+
+class GuideLayout(NamedTuple):
+    """The guide strands of a map: one per hair-bearing texel.
+
+    Attributes:
+        res: map resolution R.
+        texel_index: (N,) int64 row-major flat texel indices of the guides.
+        roots: (N,3) float32 root points (canonical head frame).
+        hair: (R,R) bool, texels carrying a guide.
+        render_index: (Pr,) int64 indices of the codec points that are rendered (root and tip kept).
+        graph: 4-neighbour pairs of the guides (for smoothness).
+    """
+
+    res: int
+    texel_index: Tensor
+    roots: Tensor
+    hair: Tensor
+    render_index: Tensor
+    graph: TexelGraph
+
+
+def guide_layout(head: Any, mask: Tensor, threshold: float, n_codec_points: int, n_render_points: int,
+                 device: torch.device | str | None = None) -> GuideLayout:
+    """Guides where ``mask`` (R,R) >= ``threshold`` on the head's valid scalp texels.
+
+    Raises:
+        ValueError when no texel carries hair.
+    """
+    res = int(mask.shape[-1])
+    grid = scalp_grid(head, res)
+    hair = np.asarray(grid.valid) & (mask.detach().cpu().numpy() >= threshold)
+    idx = np.flatnonzero(hair.ravel())
+    if idx.size == 0:
+        raise ValueError(f"the hair map has no hair-bearing texel (mask >= {threshold} on the scalp)")
+    roots = grid.roots.reshape(-1, 3)[idx]
+    n_r = int(min(max(2, n_render_points), n_codec_points))
+    ridx = np.unique(np.round(np.linspace(0, n_codec_points - 1, n_r)).astype(np.int64))
+    tix = torch.as_tensor(idx, device=device)
+    return GuideLayout(res, tix, torch.as_tensor(roots, dtype=torch.float32, device=device),
+                       torch.as_tensor(hair, device=device), torch.as_tensor(ridx, device=device),
+                       texel_graph(tix, res))
+
+
+def decode_layout(z: Tensor, layout: GuideLayout, codec: StrandCodec) -> Tensor:
+    """Guides of the layout from a (K,R,R) map -> (N,P,3) strands (P = codec.n_points), differentiable."""
+    coeffs = z.flatten(1)[:, layout.texel_index].T                          # (N,K)
+    return codec.decode(coeffs, layout.roots.to(z))
+
+
+def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: RenderSettings,
+                  shading: bool = True) -> StrandRender:
+    """Render canonical-frame strands into keyframes.
+
+    Args:
+        points: (B,N,P,3) strands in the canonical head frame, one set per rendered keyframe.
+        data: the sequence; frames: (B,) int64 keyframe positions into ``data``.
+        settings: strand width, depth bins.
+        shading: False renders the silhouette only.
+    """
+    fr = frames.to(data.K.device)
+    head_depth = data.head_depth[fr] if data.head_depth is not None else None
+    return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
+                          strand_width=settings.strand_width, head_depth=head_depth, bins=settings.bins,
+                          depth_bin=settings.depth_bin, shading=shading)
+
+
+def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, Tensor]:
+    """Silhouette, direction and depth terms of rendered keyframes ``frames`` (B,) -> dict of scalars."""
+    fr = frames.to(data.mask.device)
+    mask_t = data.mask[fr]
+    weight = data.confidence[fr] * (mask_t > 0.5)
+    return {"silhouette": silhouette_loss(out.silhouette, mask_t),
+            "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
+            "depth": depth_loss(out.depth, out.mask.detach(), data.depth[fr], data.depth_valid[fr])}

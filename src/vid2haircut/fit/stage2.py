@@ -1,0 +1,208 @@
+"""Stage 2: joint refinement over all keyframes (Vid2Haircut).
+
+Canonical guide strands are decoded from the shared hair map Z (initialised from Stage 1), copied
+once per keyframe through the :class:`~vid2haircut.fit.visibility.VisibilityGate`, moved by the
+deformation field (after ``canonical_steps`` steps, ramped in over ``ramp_steps``) and rendered with
+the keyframe's camera ``cam_from_head = world_2_cam @ T_t`` (so ``x_t = T_t(x + dx_t)``). Loss:
+
+    silhouette + direction + depth (all rendered keyframes) + penetration (canonical and deformed)
+    + smoothness of length and direction (canonical) + PCA consistency (unobserved texels)
+    + canonical (zero offsets in the reference keyframe) + motion + frame-code regularisers.
+
+Switches (``Stage2Config.switches``) remove the deformation, the smoothness, the visibility
+masking or the PCA consistency, each with one setting.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Callable
+
+import torch
+from torch import Tensor, nn
+
+from vid2haircut.fit.config import Stage2Config
+from vid2haircut.fit.data import FitData
+from vid2haircut.fit.deform import DeformationField, DeformConfig
+from vid2haircut.fit.losses import motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses
+from vid2haircut.fit.scene import decode_layout, guide_layout, image_losses, render_frames
+from vid2haircut.fit.stage1 import FitResult
+from vid2haircut.fit.trainer import History, Trainer
+from vid2haircut.fit.visibility import VisibilityGate, texel_visible_fraction
+from vid2haircut.prior.codec import StrandCodec
+
+__all__ = ["Stage2Model", "fit_stage2"]
+
+log = logging.getLogger(__name__)
+
+
+class Stage2Model(nn.Module):
+    """Canonical hair map + deformation field over M keyframes, with its loss dict.
+
+    Args:
+        data: fit data (keyframe 0 = the reference, whose offsets are regularised to zero).
+        codec: strand codec.
+        cfg: Stage 2 settings.
+        z_init: (K,R,R) initial map (Stage 1's). mask: (R,R) baldness mask (fixed).
+    """
+
+    def __init__(self, data: FitData, codec: StrandCodec, cfg: Stage2Config, z_init: Tensor, mask: Tensor) -> None:
+        super().__init__()
+        self.data, self.codec, self.cfg = data, codec, cfg
+        dev = z_init.device
+        self.z = nn.Parameter(z_init.detach().clone())
+        self.register_buffer("mask", mask.detach().clone())
+        self.layout = guide_layout(data.head, mask, cfg.mask_threshold, codec.n_points, cfg.render.n_points, dev)
+        n = int(self.layout.texel_index.numel())
+        self.deform = (DeformationField(data.n_frames, n, DeformConfig(max_offset=cfg.max_offset), seed=cfg.seed)
+                       .to(dev) if cfg.switches.use_deformation else None)
+        self.gate = VisibilityGate(cfg.switches.use_visibility)
+        self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
+        self.last_render = None
+        self.last_frames: Tensor | None = None
+        self.last_deformed: Tensor | None = None
+
+    # -- schedule -------------------------------------------------------------------------------
+    def frames_for_step(self, step: int) -> Tensor:
+        """(B,) keyframe positions rendered at ``step``: all, or a rotating window of ``frames_per_step``."""
+        m, k = self.data.n_frames, int(self.cfg.frames_per_step)
+        if k <= 0 or k >= m:
+            idx = list(range(m))
+        else:
+            start = (step * k) % m
+            idx = sorted((start + i) % m for i in range(k))
+        return torch.as_tensor(idx, dtype=torch.long, device=self.z.device)
+
+    def ramp(self, step: int) -> float:
+        """Deformation scale at ``step``: 0 during the canonical steps, then linear to 1 over the ramp."""
+        if self.deform is None or step < self.cfg.canonical_steps:
+            return 0.0
+        return float(min(1.0, (step - self.cfg.canonical_steps + 1) / max(1, self.cfg.ramp_steps)))
+
+    # -- model API ------------------------------------------------------------------------------
+    def get_param_groups(self) -> list[dict]:
+        """Z, and the deformation MLP / frame codes (method.md learning rates)."""
+        groups = [{"params": [self.z], "lr": self.cfg.lr_z, "name": "z"}]
+        if self.deform is not None:
+            groups += self.deform.param_groups(self.cfg.lr_mlp, self.cfg.lr_codes)
+        return groups
+
+    def make_optimizers(self) -> list[torch.optim.Optimizer]:
+        """One Adam over all groups."""
+        return [torch.optim.Adam(self.get_param_groups())]
+
+    def canonical(self) -> Tensor:
+        """(N,P,3) canonical guides (codec points) of the current Z."""
+        return decode_layout(self.z, self.layout, self.codec)
+
+    def deformed(self, canon_render: Tensor, frames: Tensor, scale: float) -> tuple[Tensor, Tensor]:
+        """Per-frame strands and offsets: (N,Pr,3) canonical -> ((B,N,Pr,3), (B,N,Pr,3)).
+
+        The per-frame copies pass through the visibility gate; with the deformation off (or scale
+        0) the offsets are exactly zero and the strands equal the canonical ones.
+        """
+        b = int(frames.numel())
+        per_frame = self.gate(canon_render[None].expand(b, -1, -1, -1))
+        if self.deform is None or scale == 0.0:
+            return per_frame, torch.zeros_like(per_frame)
+        moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), scale=scale) for i in range(b)))
+        return torch.stack(moved), torch.stack(offs)
+
+    def get_loss_dict(self, step: int) -> dict[str, Tensor]:
+        """All Stage 2 terms at ``step`` (see the module docstring)."""
+        cfg = self.cfg
+        frames = self.frames_for_step(step)
+        canon = self.canonical()                                                   # (N,P,3)
+        scale = self.ramp(step)
+        moved, offs = self.deformed(canon[:, self.layout.render_index], frames, scale)
+        out = render_frames(moved, self.data, frames, cfg.render)
+        self.gate.set_visibility(out.visibility)
+        with torch.no_grad():
+            self.seen[frames] = texel_visible_fraction(out.visibility).to(self.seen.dtype)
+        self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
+        losses = image_losses(out, self.data, frames)
+        pen = penetration_loss(canon, self.data.head.sdf)
+        if scale > 0.0:
+            pen = pen + penetration_loss(moved, self.data.head.sdf)
+        losses["penetration"] = pen
+        if cfg.switches.use_smoothness:
+            losses.update(smoothness_losses(canon, self.layout.graph, cfg.weights.smooth_length_back
+                                            / max(cfg.weights.smooth_length, 1e-12)))
+        if cfg.switches.use_pca_consistency:
+            losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
+        if scale > 0.0:
+            losses["motion"] = motion_loss(offs)
+            ref = (frames == 0).nonzero()
+            if ref.numel():
+                losses["canonical"] = motion_loss(offs[int(ref[0, 0])])
+            losses["frame_code"] = self.deform.regularizers()["frame_code"]
+        return losses
+
+    def observed(self) -> Tensor:
+        """(R,R) bool texels whose guide was seen (visible fraction >= observed_fraction) in some keyframe."""
+        res = self.layout.res
+        obs = torch.zeros(res * res, dtype=torch.bool, device=self.z.device)
+        obs[self.layout.texel_index] = self.seen.amax(0) >= self.cfg.observed_fraction
+        return obs.reshape(res, res)
+
+    @torch.no_grad()
+    def render_all(self, step: int) -> None:
+        """Render every keyframe at the deformation scale of ``step`` (sets ``last_*``)."""
+        frames = torch.arange(self.data.n_frames, device=self.z.device)
+        canon = self.canonical()
+        moved, _ = self.deformed(canon[:, self.layout.render_index], frames, self.ramp(step))
+        out = render_frames(moved, self.data, frames, self.cfg.render)
+        self.gate.mask = None
+        self.last_render, self.last_frames, self.last_deformed = out, frames, moved
+
+
+def fit_stage2(data: FitData, codec: StrandCodec, cfg: Stage2Config, z_init: Tensor, mask: Tensor,
+               progress: bool = True, resume: dict | None = None,
+               on_step: Callable[[int, "Stage2Model", Trainer], None] | None = None) -> FitResult:
+    """Run Stage 2.
+
+    Args:
+        data: fit data with M keyframes (keyframe 0 = reference; use ``data.subset`` for fewer).
+        codec: strand codec.
+        cfg: settings.
+        z_init, mask: Stage 1's map and baldness mask.
+        progress: show a tqdm bar.
+        resume: a checkpoint dict (:func:`checkpoint_state`) to continue from.
+        on_step: called after every step with (step, model, trainer) (checkpointing).
+
+    Returns:
+        :class:`FitResult`; ``extra`` holds ``deform`` (the field or None), ``deformed`` (M,N,Pr,3)
+        per-keyframe strands and ``observed`` (R,R).
+    """
+    dev = data.K.device
+    codec = codec.to(dev)
+    model = Stage2Model(data, codec, cfg, z_init.to(dev), mask.to(dev))
+    optimizers = model.make_optimizers()
+    history, start = History(), 0
+    if resume is not None:
+        model.load_state_dict(resume["model"])
+        for opt, st in zip(optimizers, resume["optimizers"]):
+            opt.load_state_dict(st)
+        history, start = History.from_dict(resume["history"]), int(resume["step"]) + 1
+        log.info("stage2: resuming after step %d", start - 1)
+    trainer = Trainer(model, optimizers, cfg.weights, history)
+    t0 = time.perf_counter()
+    trainer.run(start, cfg.iterations, desc="stage2", progress=progress,
+                on_step=None if on_step is None else (lambda s: on_step(s, model, trainer)))
+    model.render_all(cfg.iterations)
+    seconds = time.perf_counter() - t0
+    with torch.no_grad():
+        z = model.z.detach().clone()
+        guides = model.canonical().detach()
+    log.info("stage2: steps %d..%d in %.1fs", start, cfg.iterations, seconds)
+    return FitResult(z, model.mask, guides, model.layout.texel_index, trainer.history, model.last_render,
+                     model.last_frames, seconds, {"deform": model.deform, "deformed": model.last_deformed,
+                                                  "observed": model.observed(), "model": model})
+
+
+def checkpoint_state(step: int, model: Stage2Model, trainer: Trainer) -> dict:
+    """Everything needed to resume after ``step`` (tensors on the CPU)."""
+    return {"step": int(step), "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+            "optimizers": [opt.state_dict() for opt in trainer.optimizers],
+            "history": trainer.history.to_dict()}
