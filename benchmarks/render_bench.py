@@ -107,12 +107,36 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
                              size, size, math.log(DEFAULT_ALPHA_MIN))
     idx = fp.pix.reshape(-1)
     vals = torch.rand(idx.shape[0], device=device)
-    img = torch.zeros(frames * (size + 2) ** 2, device=device)
+    img = torch.zeros(frames * (size + 2 * fp.pad) ** 2, device=device)
     scatter = best_ms(lambda: img.zero_().scatter_add_(0, idx, vals), device, repeat)
     t_f = best_ms(fwd, device, repeat)
     t_fb = best_ms(fwd_bwd, device, repeat)
     return dict(strands=n_strands, size=size, segments=G // frames, T=idx.shape[0] // frames,
                 fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
+
+
+def breakdown(n_strands: int, size: int, device: str, repeat: int, compiled: bool = False) -> None:
+    """Print where the time of one forward+backward goes (ms per stage)."""
+    pts, K, E, hd = setup(n_strands, size, 1, device)
+    G = pts.shape[1] * (pts.shape[2] - 1)
+    frame = torch.zeros(G, dtype=torch.int64, device=device)
+    t_g = best_ms(lambda: segment_gaussians(pts, K, E), device, repeat)
+    g = segment_gaussians(pts, K, E)
+    args = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame, size, size, math.log(DEFAULT_ALPHA_MIN))
+    t_fp = best_ms(lambda: build_footprint(*args), device, repeat)
+    pts.requires_grad_(True)
+
+    def fb(shading):
+        out = render_strands(pts, K, E, size, size, head_depth=hd, shading=shading, compiled=compiled)
+        (out.silhouette.sum() + out.depth.sum() + out.direction.sum()).backward()
+        pts.grad = None
+
+    with torch.no_grad():
+        t_f = best_ms(lambda: render_strands(pts, K, E, size, size, head_depth=hd, compiled=compiled), device, repeat)
+    t_fb = best_ms(lambda: fb(True), device, repeat)
+    t_sil = best_ms(lambda: fb(False), device, repeat)
+    print(f"\nbreakdown {n_strands} strands at {size}x{size} (ms): gaussians {t_g:.1f}, footprint {t_fp:.1f}, "
+          f"forward {t_f:.1f}, forward+backward {t_fb:.1f}, silhouette-only forward+backward {t_sil:.1f}")
 
 
 def main(argv=None) -> int:
@@ -122,6 +146,7 @@ def main(argv=None) -> int:
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (CPU)")
     ap.add_argument("--frames", type=int, default=1, help="frames per call (times are per frame)")
     ap.add_argument("--compiled", action="store_true", help="use torch.compile'd element kernels")
+    ap.add_argument("--breakdown", action="store_true", help="also print the time per stage (4k strands, 256x256)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -135,6 +160,8 @@ def main(argv=None) -> int:
         r = bench_case(n, s, args.device, repeat, args.frames, args.compiled)
         print(f"| {n} | {s}x{s} | {r['segments']} | {r['T'] / 1e6:.2f} M | {r['fwd']:.1f} | {r['fwd_bwd']:.1f} | "
               f"{r['scatter']:.1f} | {r['fwd_bwd'] / r['scatter']:.1f}x |", flush=True)
+    if args.breakdown:
+        breakdown(4000, 256, args.device, repeat, args.compiled)
     return 0
 
 

@@ -39,6 +39,18 @@ def test_synthesize_rule_writes_a_sequence(workflow_run):
     assert (workflow_run / "resources/head/proxy-v1/head.obj").exists()
 
 
+def test_front_stages_write_their_artifacts(workflow_run):
+    res = workflow_run / "results"
+    kf = json.loads((res / "keyframes/synth_t000/HAIR/keyframes.json").read_text())
+    assert len(kf["frames"]) == 3 and kf["reference"] in kf["frames"]
+    head = np.load(res / "fit_head/synth_t000/HAIR/head.npz")
+    assert head["world_from_head"].shape == (3, 4, 4)
+    assert np.all(head["reprojection_error_px"] < 5.0)
+    for t in kf["frames"]:
+        tg = np.load(res / f"targets/synth_t000/HAIR/frame_{t:05d}.npz")
+        assert tg["mask"].shape == (96, 96) and tg["mask"].max() > 0
+
+
 def test_second_run_has_nothing_to_do(workflow_run):
     proc = _snakemake(workflow_run, "-n")
     assert proc.returncode == 0

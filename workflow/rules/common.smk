@@ -13,6 +13,7 @@ validate(config, schema="../schemas/config.schema.yaml")
 CLI = f"{sys.executable} -m vid2haircut"
 DATASET_ROOT = Path(config["dataset_root"])
 SYNTH = config.get("synth", {})
+CAMERA_ARG = f"--serial {config['camera']}" if config.get("camera") else ""
 SYNTH_SEQUENCES = {(s["subject"], s["seq"]): s for s in SYNTH.get("sequences", [])}
 SEQUENCES = select_sequences(DATASET_ROOT, set(SYNTH_SEQUENCES), config.get("sequences"))
 SUBJECTS = sorted({s for s, _ in SEQUENCES}) or ["none"]
@@ -51,4 +52,5 @@ def all_targets():
         if (s, q) in SYNTH_SEQUENCES
     ]
     targets.append("resources/head/proxy-v1/head.obj")
+    targets += expand_sequences("results/targets/{subject}/{seq}")
     return targets

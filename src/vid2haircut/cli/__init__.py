@@ -15,6 +15,9 @@ import sys
 COMMANDS = [
     "head",
     "synthesize",
+    "keyframes",
+    "fit_head",
+    "targets",
     "evaluate",
     "export",
 ]

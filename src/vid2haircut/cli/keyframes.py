@@ -7,9 +7,9 @@ import argparse
 
 def add_sequence_args(p: argparse.ArgumentParser) -> None:
     """Arguments naming one sequence (shared by the front-stage commands)."""
-    p.add_argument("--dataset-root", required=True, help="dataset root holding <subject>/sequences/<seq>")
+    p.add_argument("--root", "--dataset-root", dest="dataset_root", required=True, help="dataset root holding <subject>/sequences/<seq>")
     p.add_argument("--subject", required=True, help="subject folder name")
-    p.add_argument("--sequence", required=True, help="sequence name")
+    p.add_argument("--seq", "--sequence", dest="sequence", required=True, help="sequence name")
     p.add_argument("--serial", default=None, help="camera serial (default: first sorted / as recorded)")
     p.add_argument("--out", required=True, help="output folder")
 

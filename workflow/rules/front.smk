@@ -1,0 +1,83 @@
+# Front stages: keyframes -> head pose per keyframe -> per-keyframe targets (mask, orientation, depth).
+
+
+rule keyframes:
+    input:
+        ready=sequence_ready,
+    output:
+        json="results/keyframes/{subject}/{seq}/keyframes.json",
+        sheet=report(
+            "results/keyframes/{subject}/{seq}/keyframes.png",
+            caption="../report/keyframes.rst",
+            category="{subject}/{seq}",
+            subcategory="1 keyframes",
+        ),
+    params:
+        cli=CLI,
+        root=str(DATASET_ROOT),
+        camera=CAMERA_ARG,
+        out_dir=lambda w, output: str(Path(output.json).parent),
+        n=config["keyframes"]["n_keyframes"],
+        landmarks=config["keyframes"]["landmarks"],
+        head_model=config["head"]["model"],
+    log:
+        "logs/keyframes/{subject}/{seq}.log",
+    benchmark:
+        "benchmarks/keyframes/{subject}/{seq}.tsv"
+    shell:
+        "{params.cli} keyframes --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        " {params.camera} --out {params.out_dir} --num-keyframes {params.n} --landmarks {params.landmarks}"
+        " --head-model {params.head_model} > {log} 2>&1"
+
+
+rule fit_head:
+    input:
+        ready=sequence_ready,
+        keyframes="results/keyframes/{subject}/{seq}/keyframes.json",
+    output:
+        head="results/fit_head/{subject}/{seq}/head.npz",
+        overlay=report(
+            "results/fit_head/{subject}/{seq}/head_overlay.png",
+            caption="../report/head_overlay.rst",
+            category="{subject}/{seq}",
+            subcategory="2 head pose",
+        ),
+    params:
+        cli=CLI,
+        root=str(DATASET_ROOT),
+        camera=CAMERA_ARG,
+        out_dir=lambda w, output: str(Path(output.head).parent),
+        landmarks=config["keyframes"]["landmarks"],
+        head_model=config["head"]["model"],
+        tracking="--use-tracking" if config["head"]["use_tracking"] else "",
+    log:
+        "logs/fit_head/{subject}/{seq}.log",
+    benchmark:
+        "benchmarks/fit_head/{subject}/{seq}.tsv"
+    shell:
+        "{params.cli} fit_head --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        " {params.camera} --out {params.out_dir} --keyframes {input.keyframes} --landmarks {params.landmarks}"
+        " --head-model {params.head_model} {params.tracking} > {log} 2>&1"
+
+
+rule targets:
+    input:
+        ready=sequence_ready,
+        head="results/fit_head/{subject}/{seq}/head.npz",
+    output:
+        targets=directory("results/targets/{subject}/{seq}"),
+    params:
+        cli=CLI,
+        root=str(DATASET_ROOT),
+        camera=CAMERA_ARG,
+        mask=config["targets"]["mask_source"],
+        depth=config["targets"]["depth_source"],
+        device=config["device"],
+    log:
+        "logs/targets/{subject}/{seq}.log",
+    benchmark:
+        "benchmarks/targets/{subject}/{seq}.tsv"
+    shell:
+        "{params.cli} targets --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        " {params.camera} --out {output.targets} --head {input.head} --mask-source {params.mask}"
+        " --depth-source {params.depth} --device {params.device} > {log} 2>&1"
