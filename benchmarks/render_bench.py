@@ -151,7 +151,7 @@ def main(argv=None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     cases = [(4000, 256)] if args.quick else [(n, s) for s in (256, 512) for n in (2000, 4000, 10000)]
-    repeat = 3 if args.quick else 5
+    repeat = 3
     dev_name = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"CPU, {torch.get_num_threads()} threads"
     print(f"device: {dev_name}; torch {torch.__version__}; frames per call: {args.frames}; compiled: {args.compiled}\n")
     print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")

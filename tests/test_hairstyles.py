@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from vid2haircut.head import get_head
+from vid2haircut.synth.hair_fields import sample_roots
 from vid2haircut.synth.hair_grow import sample_prefix
 from vid2haircut.synth.hair_sdf import HeadSDF
 from vid2haircut.synth.hairstyles import FAMILIES, generate_hairstyle, hairstyle_params
@@ -184,6 +185,16 @@ def test_head_sdf_matches_head_and_gradient(head):
     assert np.median(np.abs(fd - g)) < 5e-3
     idx, dn = sdf.near(x, 0.01)
     np.testing.assert_array_equal(idx, np.nonzero(d < 0.01)[0])
+
+
+def test_roots_evenly_spread_on_the_surface(head):
+    from scipy.spatial import cKDTree
+
+    r = sample_roots(head, 2000, np.random.default_rng(0))
+    d = cKDTree(r.points).query(r.points, k=2)[0][:, 1]
+    assert d.std() / d.mean() < 0.45                  # more even than uniform random (~0.52)
+    bands = [d[(r.theta >= lo) & (r.theta < hi)].mean() for lo, hi in ((0, 0.6), (0.6, 1.2), (1.2, 2.1))]
+    assert max(bands) / min(bands) < 1.25             # same density near the crown and the hairline
 
 
 def test_sample_prefix_on_straight_polyline():
