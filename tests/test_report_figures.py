@@ -14,7 +14,7 @@ from vid2haircut.io.atomic import write_json, write_npz
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.report import TurntableStyle, render_views, scalp_coverage, turntable_strip
 from vid2haircut.report.metrics_table import metrics_table_rst
-from vid2haircut.report.turntable import view_pose
+from vid2haircut.report.turntable import framing_camera, view_pose
 from vid2haircut.strands import StrandSet
 from vid2haircut.synth.sequence import make_camera
 
@@ -45,11 +45,12 @@ def _parse(argv):
 def test_turntable_has_hair_in_every_view(head):
     style = TurntableStyle(size=SIZE)
     hair = _hair(head)
-    frames = render_views(hair, head, style)
-    bald = render_views(None, head, style)
+    cam = framing_camera(head, [hair.points], style)
+    frames = render_views(hair, head, style, cam)
+    bald = render_views(None, head, style, cam)
     assert len(frames) == 4
     for (view, _), f, b in zip(style.views, frames, bald):
-        assert f.image.shape == (SIZE, SIZE, 3)
+        assert f.image.shape[0] == SIZE and SIZE // 3 < f.image.shape[1] <= SIZE
         assert f.hair.sum() > 0.02 * SIZE * SIZE, view                      # hair pixels in every view
         assert b.hair.sum() == 0
         assert np.abs(f.image.astype(int) - b.image).sum() > 0, view         # the hair changes the picture
@@ -57,17 +58,19 @@ def test_turntable_has_hair_in_every_view(head):
     assert frames[3].hair.sum() > frames[0].hair.sum()
 
     strip = turntable_strip(hair, head, gt=hair.subset(np.arange(0, hair.n_strands, 2)), style=style)
-    assert strip.shape == (2 * SIZE, 4 * SIZE, 3) and strip.dtype == np.uint8
+    width = frames[0].image.shape[1]
+    assert strip.shape == (2 * SIZE, 4 * width, 3) and strip.dtype == np.uint8
     again = turntable_strip(hair, head, style=style)
-    assert again.shape == (SIZE, 4 * SIZE, 3)
+    assert again.shape == (SIZE, 4 * width, 3)
     assert np.array_equal(again[4:SIZE], strip[4:SIZE])                     # same first row, deterministic
 
 
 def test_turntable_thins_large_sets(head):
     hair = _hair(head)
     style = TurntableStyle(size=SIZE, max_strands=40)
-    full = render_views(hair, head, TurntableStyle(size=SIZE))[0].hair.sum()
-    thin = render_views(hair, head, style)[0].hair.sum()
+    cam = framing_camera(head, [hair.points], style)
+    full = render_views(hair, head, style=TurntableStyle(size=SIZE), camera=cam)[0].hair.sum()
+    thin = render_views(hair, head, style, cam)[0].hair.sum()
     assert 0 < thin < full
 
 
@@ -80,7 +83,7 @@ def test_turntable_cli(head, tmp_path):
                    str(tmp_path / "gt.npz"), "--size", str(SIZE), "--out", str(out)])
     assert args.func(args) == 0
     img = cv2.imread(str(out))
-    assert img.shape == (2 * SIZE, 4 * SIZE, 3)
+    assert img.shape[0] == 2 * SIZE and 4 * SIZE // 3 < img.shape[1] <= 4 * SIZE
     bad = _parse(["figures", "turntable", "--strands", str(tmp_path / "nope.npz"), "--out", str(out)])
     with pytest.raises(FileNotFoundError, match="nope.npz"):
         bad.func(bad)
@@ -145,7 +148,7 @@ def test_metrics_table(tmp_path):
     assert "0.000033" in rst and "0.250" in rst and "0.500" in rst and "stage2" in rst
     from docutils.core import publish_parts
 
-    html = publish_parts(rst, writer_name="html")["body"]
+    html = publish_parts(rst, writer="html")["body"]
     assert html.count("<tr") == 3 and "0.000033" in html
     with pytest.raises(ValueError, match=r"\.png, \.rst or \.md"):
         args = _parse(["figures", "metrics-table", "--inputs", *paths, "--out", str(tmp_path / "t.txt")])

@@ -20,6 +20,8 @@ COMMANDS = [
     "targets",
     "evaluate",
     "export",
+    "aggregate",
+    "figures",
 ]
 
 

@@ -13,8 +13,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of views, initialisation and batches")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     p.add_argument("--cache-dir", default=None,
-                   help="cache of the generated corpus and rendered views (default: <out-dir>/cache)")
-    p.add_argument("--threads", type=int, default=None, help="torch CPU threads while training")
+                   help="cache of the generated corpus and rendered views (default: a temporary folder)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="torch CPU threads while training (default 1: reproducible on any machine)")
     p.add_argument("--force", action="store_true", help="retrain even when the artifact is up to date")
     p.set_defaults(func=run)
 

@@ -62,7 +62,8 @@ def _dense(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: StrandCodec, n
 
 def evaluate_prior(net: PriorNet, codec: StrandCodec, families: Sequence[str], seeds: Sequence[int],
                    views_per_style: int = 1, view_cfg: ViewConfig = ViewConfig(), strands_per_style: int = 1500,
-                   n_dense: int = 2000, head: Any = None, seed: int = 0, progress: bool = True,
+                   n_dense: int = 2000, head: Any = None, seed: int = 0, max_points: int = 50_000,
+                   progress: bool = True,
                    ) -> list[PriorEvalRow]:
     """Score the prior and the baselines on unseen hairstyles.
 
@@ -77,6 +78,7 @@ def evaluate_prior(net: PriorNet, codec: StrandCodec, families: Sequence[str], s
         head: head model (default ``get_head("proxy-v1")``).
         seed: seed of the view poses (view ``v`` of (family, seed s) uses ``SeedSequence([seed, 4241, s, v])``
             plus the family index).
+        max_points: cap on each point set of the Chamfer computation (random subset).
         progress: tqdm bar.
 
     Returns:
@@ -117,8 +119,8 @@ def evaluate_prior(net: PriorNet, codec: StrandCodec, families: Sequence[str], s
         chamfer, iou = {}, {}
         for name, (zm, mm) in preds.items():
             dense = _dense(zm, mm, head, codec, n_dense, seed)
-            chamfer[name] = float(evaluate_strands(dense, gt, n_points=codec.n_points)["chamfer_pts"]) \
-                if dense.n_strands else float("nan")
+            chamfer[name] = float(evaluate_strands(dense, gt, n_points=codec.n_points, max_points=max_points,
+                                                   seed=seed)["chamfer_pts"]) if dense.n_strands else float("nan")
             pm = (mm > 0.5) & valid
             tm = target_mask & valid
             iou[name] = float((pm & tm).sum()) / max(float((pm | tm).sum()), 1.0)

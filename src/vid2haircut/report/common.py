@@ -14,7 +14,7 @@ def label_tile(tile: np.ndarray, text: str, line: int = 0) -> None:
     (H, W, 3) uint8 RGB tile, in place. The font scales with the tile width."""
     import cv2
 
-    scale = max(0.35, tile.shape[1] / 640.0)
+    scale = max(0.4, tile.shape[1] / 560.0)
     thick = max(1, int(round(scale)))
     step = int(round(26 * scale / 0.6))
     org = (int(4 + 2 * scale), int(round(20 * scale / 0.6)) + line * step)
@@ -29,6 +29,17 @@ def figure_rgb(fig) -> np.ndarray:
     canvas = FigureCanvasAgg(fig)
     canvas.draw()
     return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+
+
+def trim_white(img: np.ndarray, margin: int = 8) -> np.ndarray:
+    """Crop the uniform white border of an (H, W, 3) uint8 image, keeping ``margin`` pixels."""
+    ink = (img < 250).any(-1)
+    if not ink.any():
+        return img
+    rows, cols = np.flatnonzero(ink.any(1)), np.flatnonzero(ink.any(0))
+    r0, r1 = max(rows[0] - margin, 0), min(rows[-1] + margin + 1, img.shape[0])
+    c0, c1 = max(cols[0] - margin, 0), min(cols[-1] + margin + 1, img.shape[1])
+    return np.ascontiguousarray(img[r0:r1, c0:c1])
 
 
 def load_head(spec: str | os.PathLike | None, default: str | None = None):

@@ -17,7 +17,7 @@ import pandas as pd
 from vid2haircut.evaluate.aggregate import (MAIN_METRICS, collect_metrics, format_value, markdown_table,
                                             metric_title)
 from vid2haircut.io.atomic import write_image, write_text
-from vid2haircut.report.common import figure_rgb
+from vid2haircut.report.common import figure_rgb, trim_white
 
 __all__ = ["table_cells", "rst_table", "metrics_table_rst", "metrics_table_image", "write_metrics_table"]
 
@@ -60,16 +60,16 @@ def metrics_table_rst(df: pd.DataFrame, metrics: Sequence[str] = MAIN_METRICS) -
 def metrics_table_image(df: pd.DataFrame, title: str = "", metrics: Sequence[str] = MAIN_METRICS,
                         dpi: int = 100) -> np.ndarray:
     """The runs in ``df`` drawn as a table figure -> (H, W, 3) uint8 RGB (header row shaded,
-    runs without ground truth in grey)."""
+    runs without ground truth in grey, white border trimmed)."""
     from matplotlib.figure import Figure
 
     header, rows = table_cells(df, metrics)
     n = max(1, len(rows))
     width = 1.2 + 1.15 * len(header)
-    fig = Figure(figsize=(width, 0.6 + 0.32 * (n + 1) + (0.3 if title else 0.0)), dpi=dpi)
-    ax = fig.add_axes((0.01, 0.01, 0.98, 0.98 - (0.3 if title else 0.0) / fig.get_figheight()))
+    fig = Figure(figsize=(width, 0.8 + 0.3 * (n + 1)), dpi=dpi)
+    ax = fig.add_axes((0.01, 0.01, 0.98, 0.8))
     ax.axis("off")
-    table = ax.table(cellText=rows or [["n/a"] * len(header)], colLabels=header, loc="center", cellLoc="center")
+    table = ax.table(cellText=rows or [["n/a"] * len(header)], colLabels=header, loc="upper center", cellLoc="center")
     table.auto_set_font_size(False)
     table.set_fontsize(8)
     table.scale(1.0, 1.3)
@@ -81,8 +81,8 @@ def metrics_table_image(df: pd.DataFrame, title: str = "", metrics: Sequence[str
         elif r - 1 < len(has_gt) and not has_gt[r - 1]:
             cell.get_text().set_color((0.45, 0.45, 0.45))
     if title:
-        fig.suptitle(title, fontsize=9, y=0.98)
-    return figure_rgb(fig)
+        ax.set_title(title, fontsize=9)
+    return trim_white(figure_rgb(fig))
 
 
 def write_metrics_table(out: str | os.PathLike, inputs: Sequence[str | os.PathLike],
