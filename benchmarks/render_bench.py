@@ -7,7 +7,7 @@ of T values into an image of that size (the bandwidth ceiling; the indices are t
 pixel indices, so the memory access pattern is the same).
 
 Usage:
-    python benchmarks/render_bench.py [--quick] [--device cpu|cuda] [--threads N] [--compiled]
+    python benchmarks/render_bench.py [--quick] [--breakdown] [--device cpu|cuda] [--threads N] [--frames B]
 
 The scene is a synthetic long-hair style on a 0.1 m scalp sphere seen from 0.6 m with a head
 occluder (the sphere's depth), hair filling most of the frame, as in the fitting stages.
@@ -85,16 +85,16 @@ def best_ms(fn, device: str, repeat: int) -> float:
     return best * 1e3
 
 
-def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, compiled: bool = False) -> dict:
+def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1) -> dict:
     pts, K, E, hd = setup(n_strands, size, frames, device)
     pts.requires_grad_(True)
 
     def fwd():
         with torch.no_grad():
-            render_strands(pts, K, E, size, size, head_depth=hd, compiled=compiled)
+            render_strands(pts, K, E, size, size, head_depth=hd)
 
     def fwd_bwd():
-        out = render_strands(pts, K, E, size, size, head_depth=hd, compiled=compiled)
+        out = render_strands(pts, K, E, size, size, head_depth=hd)
         loss = out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()
         loss.backward()
         pts.grad = None
@@ -105,7 +105,7 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
         fp = build_footprint(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G),
                              torch.arange(frames, device=device).repeat_interleave(g.depths.shape[1]),
                              size, size, math.log(DEFAULT_ALPHA_MIN))
-    idx = fp.pix.reshape(-1)
+    idx = (fp.colbase[None] + torch.arange(fp.rows, device=device)[:, None] * fp.vstride[None]).reshape(-1)
     vals = torch.rand(idx.shape[0], device=device)
     img = torch.zeros(frames * (size + 2 * fp.pad) ** 2, device=device)
     scatter = best_ms(lambda: img.zero_().scatter_add_(0, idx, vals), device, repeat)
@@ -115,7 +115,7 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
                 fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
 
 
-def breakdown(n_strands: int, size: int, device: str, repeat: int, compiled: bool = False) -> None:
+def breakdown(n_strands: int, size: int, device: str, repeat: int) -> None:
     """Print where the time of one forward+backward goes (ms per stage)."""
     pts, K, E, hd = setup(n_strands, size, 1, device)
     G = pts.shape[1] * (pts.shape[2] - 1)
@@ -127,12 +127,12 @@ def breakdown(n_strands: int, size: int, device: str, repeat: int, compiled: boo
     pts.requires_grad_(True)
 
     def fb(shading):
-        out = render_strands(pts, K, E, size, size, head_depth=hd, shading=shading, compiled=compiled)
+        out = render_strands(pts, K, E, size, size, head_depth=hd, shading=shading)
         (out.silhouette.sum() + out.depth.sum() + out.direction.sum()).backward()
         pts.grad = None
 
     with torch.no_grad():
-        t_f = best_ms(lambda: render_strands(pts, K, E, size, size, head_depth=hd, compiled=compiled), device, repeat)
+        t_f = best_ms(lambda: render_strands(pts, K, E, size, size, head_depth=hd), device, repeat)
     t_fb = best_ms(lambda: fb(True), device, repeat)
     t_sil = best_ms(lambda: fb(False), device, repeat)
     print(f"\nbreakdown {n_strands} strands at {size}x{size} (ms): gaussians {t_g:.1f}, footprint {t_fp:.1f}, "
@@ -145,7 +145,6 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (CPU)")
     ap.add_argument("--frames", type=int, default=1, help="frames per call (times are per frame)")
-    ap.add_argument("--compiled", action="store_true", help="use torch.compile'd element kernels")
     ap.add_argument("--breakdown", action="store_true", help="also print the time per stage (4k strands, 256x256)")
     args = ap.parse_args(argv)
     if args.threads:
@@ -153,15 +152,15 @@ def main(argv=None) -> int:
     cases = [(4000, 256)] if args.quick else [(n, s) for s in (256, 512) for n in (2000, 4000, 10000)]
     repeat = 3
     dev_name = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"CPU, {torch.get_num_threads()} threads"
-    print(f"device: {dev_name}; torch {torch.__version__}; frames per call: {args.frames}; compiled: {args.compiled}\n")
+    print(f"device: {dev_name}; torch {torch.__version__}; frames per call: {args.frames}\n")
     print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")
     print("|---|---|---|---|---|---|---|---|")
     for n, s in cases:
-        r = bench_case(n, s, args.device, repeat, args.frames, args.compiled)
+        r = bench_case(n, s, args.device, repeat, args.frames)
         print(f"| {n} | {s}x{s} | {r['segments']} | {r['T'] / 1e6:.2f} M | {r['fwd']:.1f} | {r['fwd_bwd']:.1f} | "
               f"{r['scatter']:.1f} | {r['fwd_bwd'] / r['scatter']:.1f}x |", flush=True)
     if args.breakdown:
-        breakdown(4000, 256, args.device, repeat, args.compiled)
+        breakdown(4000, 256, args.device, repeat)
     return 0
 
 

@@ -24,7 +24,7 @@ def test_forward_shapes_default_and_tiny():
     # "a few MB of weights"
     assert 0.2e6 < PriorNet(PriorConfig()).n_parameters() < 2.5e6
     with pytest.raises(ValueError, match="expected input"):
-        PriorNet(PriorConfig.tiny())(torch.zeros(1, 5, 32, 32))
+        PriorNet(PriorConfig.tiny())(torch.zeros(1, 6, 32, 32))
     with pytest.raises(ValueError):
         PriorConfig(input_size=100)
 
@@ -32,14 +32,14 @@ def test_forward_shapes_default_and_tiny():
 def _disc_view(distance: float, size: int, shift: tuple[int, int], yaw: float = 0.0):
     """Analytic view of a disc (radius 8 cm) in the plane through the crop centre, facing the camera."""
     f = 0.6 * size * 0.7 / 0.25                         # the synthetic camera's lens, scaled
-    K = np.array([[f, 0, (size - 1) / 2 + shift[0]], [0, f, (size - 1) / 2 + shift[1]], [0, 0, 1.0]])
+    K = np.array([[f, 0, size - 0.5 + shift[0]], [0, f, size - 0.5 + shift[1]], [0, 0, 1.0]])
     w2c = look_at(np.array([0.0, 0.0, distance]), np.zeros(3))
     c, s = np.cos(yaw), np.sin(yaw)
     pose = np.eye(4)
     pose[:3, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
     pose[:3, 3] = [0.01, -0.02, 0.0]
     centre = (w2c @ pose @ np.r_[np.asarray(CROP_CENTER), 1.0])[:3]
-    h, w = size + 2 * abs(shift[1]) + 8, size + 2 * abs(shift[0]) + 8
+    h, w = 2 * size + 2 * abs(shift[1]), 2 * size + 2 * abs(shift[0])     # the crop fits inside
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
     X = (xs - K[0, 2]) / f * centre[2] - centre[0]      # back-projection onto the plane z = centre z
     Y = (ys - K[1, 2]) / f * centre[2] - centre[1]
@@ -54,9 +54,13 @@ def test_prior_input_same_crop_when_head_shifted_in_image():
     a = _disc_view(0.7, 96, (0, 0))
     b = _disc_view(0.7, 96, (13, -7))                  # the head elsewhere in a larger image
     xa, xb = prior_input(*a, size=64), prior_input(*b, size=64)
-    assert xa.shape == (1, 5, 64, 64)
+    assert xa.shape == (1, 6, 64, 64)
     assert float(xa[0, 0].sum()) > 50
     assert torch.allclose(xa, xb, atol=1e-5)
+    assert float(xa[0, 5].min()) == 1.0                # the whole crop lies inside the image
+    part = prior_input(*[m[:96, :96] for m in a[:4]], *a[4:], size=64)     # a cut-off image
+    assert 0.05 < float(part[0, 5].mean()) < 0.95
+    assert float((part[0, 0] * (1 - part[0, 5])).max()) < 0.5     # outside: at most a bilinear border
 
 
 def test_prior_input_centre_and_scale_invariance():
@@ -75,7 +79,7 @@ def test_prior_input_centre_and_scale_invariance():
     assert np.allclose(near[0, 1].numpy()[inside] / m_near[inside], np.cos(0.6), atol=1e-4)
     assert np.allclose(near[0, 2].numpy()[inside] / m_near[inside], np.sin(0.6), atol=1e-4)
     no_depth = prior_input(*_disc_view(0.7, 96, (0, 0))[:3], None, *_disc_view(0.7, 96, (0, 0))[4:], size=64)
-    assert float(no_depth[0, 3:].abs().sum()) == 0.0
+    assert float(no_depth[0, 3:5].abs().sum()) == 0.0 and float(no_depth[0, 5].min()) == 1.0
 
 
 def test_prior_input_bad_input():
@@ -101,7 +105,7 @@ def test_tiny_training_lowers_loss_and_artifact_is_reused(tmp_path):
     assert rec["seed"] == 0 and rec["corpus"]["n_styles"] == 4 and rec["environment"]["torch"] == torch.__version__
     net, codec, record = load_prior(out)
     assert record["fingerprint"] == rec["fingerprint"] and codec.k == net.cfg.k == 16
-    z, logits = net(torch.zeros(1, 5, net.cfg.input_size, net.cfg.input_size))
+    z, logits = net(torch.zeros(1, net.cfg.in_channels, net.cfg.input_size, net.cfg.input_size))
     assert z.shape == (1, 16, 16, 16) and logits.shape == (1, 16, 16)
 
     # cached: the second call returns without training and touches nothing

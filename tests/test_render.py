@@ -269,3 +269,47 @@ def test_cuda_matches_cpu():
     gpu = render_strands(pts.cuda(), K.cuda(), E.cuda(), size, size)
     assert torch.allclose(cpu.silhouette, gpu.silhouette.cpu(), atol=1e-9)
     assert torch.allclose(cpu.depth, gpu.depth.cpu(), atol=1e-9)
+
+
+def test_chunked_kernels_match_single_chunk():
+    """The CPU path processes elements in cache-sized chunks; results must not depend on the chunking."""
+    from vid2haircut.render.api import DEFAULT_ALPHA_MIN
+    from vid2haircut.render.footprint import build_footprint
+    from vid2haircut.render.kernels import KernelConsts
+    from vid2haircut.render.raster import composite
+
+    size = 24
+    K, E = (torch.tensor(a) for a in orbit_camera(size))
+    pts = torch.tensor(np.concatenate([random_scene(9), random_scene(10)]), requires_grad=True)
+    K, E = K.expand(2, 3, 3), E.expand(2, 4, 4)
+    head = quad_depth(0.26, size, K[:1], torch.eye(4, dtype=DT)[None]).expand(2, size, size)
+    results = []
+    for chunk in (1 << 40, 64):
+        g = segment_gaussians(pts, K, E)
+        G = g.depths.numel()
+        frame = torch.arange(2).repeat_interleave(g.depths.shape[1])
+        fp = build_footprint(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame, size, size,
+                             math.log(DEFAULT_ALPHA_MIN))
+        consts = KernelConsts(0.0, DEFAULT_ALPHA_MIN, 0.99, 1e-3, 32, 0.3, True, chunk)
+        sums, vis = composite(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2),
+                              fp, 2, size, size, consts, head)
+        loss = sums.log_transmittance.sum() + (sums.depth * 3).sum() + sums.dirs.sum()
+        results.append((sums, vis, torch.autograd.grad(loss, pts)[0]))
+        assert fp.u.shape[0] * fp.rows > 10 * 64  # really several chunks
+    (a, va, ga), (b, vb, gb) = results
+    for x, y in zip(a, b):
+        assert torch.allclose(x, y, atol=1e-12)
+    assert torch.equal(va, vb) and torch.allclose(ga, gb, atol=1e-10)
+
+
+def test_projection_jacobian_matches_finite_differences():
+    from vid2haircut.render.project import project_camera_points, projection_jacobian
+
+    K = torch.tensor([[[300.0, 2.0, 40.0], [0.0, 310.0, 30.0], [0.0, 0.0, 1.0]]], dtype=DT)
+    cam = torch.tensor([[[0.05, -0.03, 0.6], [-0.1, 0.02, 0.4]]], dtype=DT)
+    J = projection_jacobian(cam, K)
+    for i in range(3):
+        d = torch.zeros(3, dtype=DT)
+        d[i] = 1e-6
+        num = (project_camera_points(cam + d, K)[0] - project_camera_points(cam - d, K)[0]) / 2e-6
+        assert torch.allclose(J[..., i], num, atol=1e-5)

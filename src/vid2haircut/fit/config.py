@@ -89,12 +89,16 @@ class Stage1Config:
     """Steps during which only the first ``coarse_components`` PCA components are optimised."""
     coarse_components: int = 10
     """PCA components optimised during the coarse steps (method.md: 10)."""
+    finetune_prior: bool = True
+    """With a prior: fine-tune its weights (the method); False optimises Z directly from its prediction."""
     lr_prior: float = 1.0e-4
     """AdamW learning rate when fine-tuning the prior network (method.md: 1e-4)."""
     weight_decay_prior: float = 1.0e-3
     """AdamW weight decay when fine-tuning the prior network (method.md: 1e-3)."""
     lr_z: float = 0.03
     """Adam learning rate when the hair map Z itself is the parameter (no prior; whitened units)."""
+    map_res: int = 32
+    """Hair map resolution R when there is no prior (with a prior: the network's)."""
     mask_threshold: float = 0.5
     """Texels whose baldness-mask value reaches this carry a guide strand."""
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01, penetration=1.0e4))

@@ -174,10 +174,10 @@ def fit_stage1(data: FitData, codec: StrandCodec, cfg: Stage1Config, prior: tupl
     dev = data.K.device
     codec = codec.to(dev)
     if z_init is None or mask is None:
-        z0, m0 = initial_hairmap(data, codec, prior)
+        z0, m0 = initial_hairmap(data, codec, prior, cfg.map_res)
         z_init = z0 if z_init is None else z_init
         mask = m0 if mask is None else mask
-    if prior is not None:
+    if prior is not None and cfg.finetune_prior:
         net = prior[0].to(dev)
         net.eval()
         for p in net.parameters():

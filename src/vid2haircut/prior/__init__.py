@@ -5,6 +5,10 @@
   :func:`decode_guides`, :func:`decode_texels`, :func:`decode_dense`.
 - :mod:`.scalp` (texel grids, cached), :mod:`.upsample` (HAAR nearest / bilinear blend).
 - :mod:`.corpus`: generated training / held-out corpora; :mod:`.roundtrip`: round-trip errors.
+- :mod:`.model`: the learned prior :class:`~.model.PriorNet` (+ ``PriorConfig``, ``load_prior``);
+  :mod:`.views`: ``prior_input`` (the canonical head-centred crop) and the training-view renderer;
+  :mod:`.dataset`, :mod:`.losses`, :mod:`.train` (``train_prior``: the cached training stage);
+  :mod:`.evaluate_prior`: prior vs mean hairstyle on unseen views.
 """
 
 from vid2haircut.prior.codec import StrandCodec, component_mask

@@ -28,7 +28,7 @@ from vid2haircut.io.atomic import write_npz
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.corpus import Corpus, build_corpus, load_corpus, save_corpus
 from vid2haircut.prior.hairmap import encode_strands
-from vid2haircut.prior.views import ViewConfig, prior_input, random_pose, render_view
+from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, prior_input, random_pose, render_view
 
 __all__ = ["DatasetConfig", "PriorDataset", "load_or_build_corpus", "build_dataset", "recipe_hash"]
 
@@ -127,7 +127,7 @@ def _render_inputs(corpus: Corpus, head: Any, cfg: DatasetConfig, input_size: in
     from tqdm.auto import tqdm
 
     n_styles, n_views = len(corpus.styles), int(cfg.views_per_style)
-    inputs = np.zeros((n_styles * n_views, 5, input_size, input_size), np.float16)
+    inputs = np.zeros((n_styles * n_views, len(INPUT_CHANNELS), input_size, input_size), np.float16)
     style = np.repeat(np.arange(n_styles), n_views)
     bar = tqdm(total=n_styles * n_views, desc="prior views", disable=not progress, leave=False)
     for i in range(n_styles):
@@ -166,7 +166,8 @@ def build_dataset(corpus: Corpus, codec: StrandCodec, head: Any, cfg: DatasetCon
     z, mask = _targets(corpus, codec, head, map_res)
     recipe = {"styles": [list(s) for s in corpus.styles], "strands": int(corpus.n_strands),
               "view": asdict(cfg.view), "views": cfg.views_per_style, "size": input_size, "seed": seed,
-              "head": cfg.head, "points_sum": float(np.float64(corpus.points[::97].sum()))}
+              "head": cfg.head, "points_sum": float(np.float64(corpus.points[::97].sum())),
+              "channels": list(INPUT_CHANNELS)}
     path = None if cache_dir is None else Path(cache_dir) / f"views_{recipe_hash(recipe)}.npz"
     inputs = style = None
     if path is not None and path.is_file():

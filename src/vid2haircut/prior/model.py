@@ -3,7 +3,7 @@
 Architecture (Im2Haircut's prior sized for CPU training):
 
 1. CNN encoder: ``len(enc_channels)`` stride-2 stages (conv3x3 s2 + conv3x3, GroupNorm, GELU) take
-   the ``(B, 5, S, S)`` input (:func:`vid2haircut.prior.views.prior_input`) to a ``(B, d, S/2^n, S/2^n)``
+   the ``(B, 6, S, S)`` input (:func:`vid2haircut.prior.views.prior_input`) to a ``(B, d, S/2^n, S/2^n)``
    feature grid of image tokens.
 2. Transformer: the image tokens (plus learned position embeddings) and ``q x q`` learned *scalp
    queries* (one per coarse texel of the hair map, ``q = map_res / 2^len(dec_channels)``) go through
@@ -17,7 +17,7 @@ Architecture (Im2Haircut's prior sized for CPU training):
 Example::
 
     net = PriorNet(PriorConfig())                 # default: S=128, R=32, K=64
-    z, mask_logits = net(torch.zeros(2, 5, 128, 128))   # (2,64,32,32), (2,32,32)
+    z, mask_logits = net(torch.zeros(2, 6, 128, 128))   # (2,64,32,32), (2,32,32)
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ class PriorConfig:
     input_size: int = 128
     """Side S of the input crop (a multiple of ``2 ** len(enc_channels)``)."""
     in_channels: int = len(INPUT_CHANNELS)
-    """Input channels (mask, mask*cos2a, mask*sin2a, depth, depth_valid)."""
+    """Input channels (:data:`vid2haircut.prior.views.INPUT_CHANNELS`)."""
     map_res: int = 32
     """Hair map resolution R (a multiple of ``2 ** len(dec_channels)``)."""
     k: int = 64

@@ -99,7 +99,7 @@ SETTINGS: dict[str, TrainConfig] = {
         data=DatasetConfig(families=("bob", "long_straight"), train_seeds=(0, 1), strands_per_style=300,
                            views_per_style=2, view=ViewConfig(render_size=64, render_strands=300,
                                                               render_points=12, strand_width=4e-3)),
-        steps=60, batch=4, lr=3e-3, warmup=5, n_texels=32, shift_px=2),
+        steps=150, batch=4, lr=3e-3, warmup=10, n_texels=32, shift_px=2),
 }
 """Named settings of ``train_prior``: ``default`` (the committed prior) and ``tiny`` (tests)."""
 
@@ -185,7 +185,13 @@ def _existing(out_dir: Path, fingerprint: str) -> dict | None:
         record = json.loads((out_dir / "prior.json").read_text())
     except (OSError, ValueError):
         return None
-    return record if record.get("fingerprint") == fingerprint else None
+    if record.get("fingerprint") != fingerprint:
+        return None
+    try:
+        codec_ok = StrandCodec.load(out_dir / "codec.npz").fingerprint() == record.get("codec_fingerprint")
+    except (OSError, ValueError):
+        codec_ok = False
+    return record if codec_ok else None
 
 
 def train_prior(out_dir: str | Path, setting: str | TrainConfig = "default", seed: int = 0,
@@ -276,6 +282,7 @@ def _train(out_dir: Path, cfg: TrainConfig, setting: str | TrainConfig, seed: in
                         "device": str(device), "threads": torch.get_num_threads()},
     }
     out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "prior.json").unlink(missing_ok=True)   # the completion marker goes first, comes back last
     codec.save(out_dir / "codec.npz")
     state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
     with atomic_path(out_dir / "prior.pt") as tmp:

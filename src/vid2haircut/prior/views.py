@@ -6,7 +6,8 @@ square window of the head's image plane. The window is centred on the projection
 point ``crop_center`` (default 4 cm below the head centre, so long hair fits) and spans
 ``2 * half_extent`` metres at the depth of that point, so the crop is the same whatever the head's
 position in the image, the camera distance or the image resolution. Channels
-(:data:`INPUT_CHANNELS`): mask, mask*cos(2a), mask*sin(2a), depth*valid, valid.
+(:data:`INPUT_CHANNELS`): mask, mask*cos(2a), mask*sin(2a), depth*valid, valid, in_image (1 where
+the crop sees the image: hair that runs off the image border is then told apart from hair that ends).
 
 The same function builds training inputs from views rendered by :func:`render_view` (a generated
 hairstyle on the proxy head, posed by :func:`random_pose`, rendered through
@@ -18,7 +19,7 @@ Example::
     cfg = ViewConfig()
     pose = random_pose(np.random.default_rng(0), cfg)
     maps = render_view(strands.points, head, pose, cfg, seed=0)
-    x = prior_input(*maps.as_tuple(), maps.K, maps.world_2_cam, pose, size=128)   # (1,5,128,128)
+    x = prior_input(*maps.as_tuple(), maps.K, maps.world_2_cam, pose, size=128)   # (1,6,128,128)
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from vid2haircut.geometry import apply_transform, axis_angle_to_matrix, make_tra
 __all__ = ["INPUT_CHANNELS", "CROP_HALF_EXTENT", "CROP_CENTER", "prior_input", "crop_affine", "ViewConfig",
            "ViewMaps", "random_pose", "render_view", "relative_depth_quantile"]
 
-INPUT_CHANNELS = ("mask", "mask_cos2a", "mask_sin2a", "depth", "depth_valid")
+INPUT_CHANNELS = ("mask", "mask_cos2a", "mask_sin2a", "depth", "depth_valid", "in_image")
 """Channel order of :func:`prior_input`."""
 CROP_HALF_EXTENT = 0.2
 """Half the side of the crop window, metres at the depth of the crop centre."""
@@ -91,8 +92,8 @@ def prior_input(mask: np.ndarray, angle: np.ndarray, depth: np.ndarray, depth_va
         device: device of the result.
 
     Returns:
-        (1,5,S,S) float32 tensor, channels :data:`INPUT_CHANNELS`; zeros outside the image.
-        Downsampling is anti-aliased with a Gaussian pre-blur.
+        (1,6,S,S) float32 tensor, channels :data:`INPUT_CHANNELS`; the first five are zero outside
+        the image, ``in_image`` is 1 inside it. Downsampling is anti-aliased with a Gaussian pre-blur.
     """
     mask = np.asarray(mask)
     h, w = mask.shape[:2]
@@ -120,6 +121,8 @@ def prior_input(mask: np.ndarray, angle: np.ndarray, depth: np.ndarray, depth_va
     grid = np.stack([(2.0 * x + 1.0) / w - 1.0, (2.0 * y + 1.0) / h - 1.0], -1)   # align_corners=False
     out = F.grid_sample(src, torch.as_tensor(grid, dtype=torch.float32)[None], mode="bilinear",
                         padding_mode="zeros", align_corners=False)
+    inside = (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
+    out = torch.cat([out, torch.as_tensor(inside, dtype=torch.float32)[None, None]], dim=1)
     return out.to(device=device)
 
 

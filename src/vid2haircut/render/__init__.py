@@ -7,6 +7,7 @@ Public API:
     project_points(points, K, world_2_cam) -> (uv, z)
 """
 
+from vid2haircut.render.allocator import tune_cpu_allocator
 from vid2haircut.render.api import DEFAULT_ALPHA_MIN, normalize_depth, render_strands
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, segment_gaussians
 from vid2haircut.render.mesh_depth import mesh_depth
@@ -16,4 +17,5 @@ from vid2haircut.render.types import Footprint, Gaussians2D, PixelSums, StrandRe
 __all__ = [
     "DEFAULT_ALPHA_MIN", "DEFAULT_DILATION", "DEFAULT_STRAND_WIDTH", "Footprint", "Gaussians2D", "PixelSums",
     "StrandRender", "mesh_depth", "normalize_depth", "project_points", "render_strands", "segment_gaussians",
+    "tune_cpu_allocator",
 ]

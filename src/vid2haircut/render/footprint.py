@@ -39,6 +39,16 @@ def _choose_rows(ncol_tiles: Tensor, need: Tensor, max_rows: int) -> int:
     return int(torch.argmin(cost).item()) + 1
 
 
+def _morton_key(means: Tensor, frame: Tensor, width: int, height: int, cell: int = 16) -> Tensor:
+    """[G] int64 sort key: frame, then the Z-order index of the Gaussian's 16 x 16 pixel cell."""
+    cx = torch.nan_to_num(means[:, 0] / cell, nan=0.0).clamp(0, 1023).to(torch.int64)
+    cy = torch.nan_to_num(means[:, 1] / cell, nan=0.0).clamp(0, 1023).to(torch.int64)
+    key = torch.zeros_like(cx)
+    for bit in range(10):
+        key |= ((cx >> bit) & 1) << (2 * bit) | ((cy >> bit) & 1) << (2 * bit + 1)
+    return frame * (1 << 20) + key
+
+
 @torch.no_grad()
 def build_footprint(
     means: Tensor,  # [G, 2]
@@ -62,7 +72,7 @@ def build_footprint(
         cols: tile width in columns; max_rows: largest tile height tried.
 
     Returns:
-        :class:`Footprint`; ``pix`` indexes a flat buffer of B * (height + 2 pad) * (width + 2 pad) pixels.
+        :class:`Footprint`; pixel indices address a flat buffer of B * (height + 2 pad) * (width + 2 pad).
     """
     if power_min >= 0:
         raise ValueError(f"power_min must be negative (alpha_min < opacity), got {power_min}")
@@ -97,29 +107,40 @@ def build_footprint(
     ntv = (need_i + rows - 1) // rows
     ntile = ntu * ntv
 
-    tile_gauss = torch.repeat_interleave(torch.arange(means.shape[0], device=dev), ntile)
-    start = torch.cumsum(ntile, 0) - ntile
-    local = torch.arange(tile_gauss.shape[0], device=dev) - start[tile_gauss]
-    ntv_t = ntv[tile_gauss]
+    # Visit the Gaussians in a spatially coherent order (Morton order of 16-pixel cells) so that
+    # consecutive tiles touch nearby pixels: the per-pixel gathers and scatters then hit the cache.
+    order = torch.argsort(_morton_key(means, frame, width, height))
+    ntile_o = ntile[order]
+    tile_gauss = torch.repeat_interleave(order, ntile_o)
+    start = torch.cumsum(ntile_o, 0) - ntile_o
+    local = torch.arange(tile_gauss.shape[0], device=dev) - torch.repeat_interleave(start, ntile_o)
+    g = tile_gauss
+    nt = g.shape[0]
+
+    def take(x: Tensor) -> Tensor:  # per Gaussian -> per tile
+        return x.index_select(0, g)
+
+    def ex(x: Tensor) -> Tensor:  # per tile -> per column (flat [nt * cols], tile-major)
+        return x[:, None].expand(nt, cols).reshape(-1)
+
+    ntv_t = take(ntv)
     cu = local // ntv_t
     cv = local - cu * ntv_t
-
-    g = tile_gauss
-    col = torch.arange(cols, device=dev, dtype=torch.float32)
-    u = u_lo[g, None] + (cu * cols).to(torch.float32)[:, None] + col  # [nt, cols]
-    vc = mv[g, None] + slope[g, None] * (u - mu[g, None])
-    vstart = torch.ceil(vc - half[g, None]) + (cv * rows).to(torch.float32)[:, None]
-
+    slope_t = take(slope)
     pad = max(rows, cols) + 1
+    col = (torch.arange(nt * cols, device=dev) % cols).to(torch.float32)
+    u = ex(take(u_lo) + (cu * cols).to(torch.float32)).add_(col)  # [nt * cols]
+    # first window row of each column: ceil(v_c(u) - half), v_c(u) = mv + slope (u - mu)
+    v0 = take(mv) - slope_t * take(mu) - take(half)
+    vstart = torch.ceil(ex(slope_t).mul_(u).add_(ex(v0))).add_(ex((cv * rows).to(torch.float32)))
     # Windows that start more than ``pad`` off the image lie wholly off it; clamping them keeps
     # every index inside the padded buffer without per-pixel bounds checks.
-    vstart = torch.minimum(vstart.clamp_min(-float(pad)), size_v[g, None] + float(pad - rows))
-    hz_t = hz[g]
+    size_v_t = take(size_v)
+    vstart = torch.minimum(vstart.clamp_min_(-float(pad)), ex(size_v_t + float(pad - rows)))
+    hz_t = take(hz)
     stride_row = width + 2 * pad
     stride_u = torch.where(hz_t, 1, stride_row)
-    stride_v = torch.where(hz_t, stride_row, 1)
-    base = frame[g] * ((height + 2 * pad) * stride_row) + pad * (stride_row + 1)  # pixel (0, 0)
-    colbase = base[:, None] + u.to(torch.int64) * stride_u[:, None] + vstart.to(torch.int64) * stride_v[:, None]
-    rowoff = torch.arange(rows, device=dev) * stride_v[:, None]  # [nt, rows]
-    pix = colbase[:, :, None] + rowoff[:, None, :]
-    return Footprint(tile_gauss, u, vstart, pix, hz, rows, cols, pad)
+    stride_v = ex(torch.where(hz_t, stride_row, 1))
+    base = take(frame) * ((height + 2 * pad) * stride_row) + pad * (stride_row + 1)  # pixel (0, 0)
+    colbase = ex(base).add_(u.to(torch.int64).mul_(ex(stride_u))).add_(vstart.to(torch.int64).mul_(stride_v))
+    return Footprint(tile_gauss, u, vstart, colbase, stride_v, hz, rows, cols, pad)

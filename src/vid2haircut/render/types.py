@@ -40,11 +40,14 @@ class Footprint(NamedTuple):
     column gets several tiles stacked along v.
 
     Attributes:
-        tile_gauss: [nt] int64 index of the Gaussian (flattened over B * S) of each tile.
-        u: [nt, cols] float pixel coordinate along u of each tile column (may lie off-image).
-        vstart: [nt, cols] float v coordinate of the first window row of each column.
-        pix: [nt, cols, rows] int64 index into the padded (B, H + 2 pad, W + 2 pad) pixel
-            buffer; off-image pixels land in the padding, which is cropped away.
+        tile_gauss: [nt] int64 index of the Gaussian (flattened over B * S) of each tile; tiles
+            are ordered along a Morton curve of the image (cache-friendly pixel access).
+        u: [nt * cols] float pixel coordinate along u of each tile column (tile-major).
+        vstart: [nt * cols] float v coordinate of the first window row of each column.
+        colbase: [nt * cols] int64 index of each column's first window pixel in the padded
+            (B, H + 2 pad, W + 2 pad) pixel buffer; off-image pixels land in the padding.
+        vstride: [nt * cols] int64 index step of one pixel along v; row r of column k is pixel
+            colbase[k] + r * vstride[k].
         horizontal: [G] bool, True where u = x for that Gaussian.
         rows: window height (pixels per column per tile).
         cols: tile width (columns per tile).
@@ -54,7 +57,8 @@ class Footprint(NamedTuple):
     tile_gauss: Tensor
     u: Tensor
     vstart: Tensor
-    pix: Tensor
+    colbase: Tensor
+    vstride: Tensor
     horizontal: Tensor
     rows: int
     cols: int

@@ -1,0 +1,204 @@
+"""Table-1 style quality benchmark: prior alone, Stage 1, Stage 2 and its ablations on generated sequences.
+
+For each (family, seed) of a small fixed set (seeds >= 1000, not used to train the prior; hair
+motion on) it synthesises the sequence, runs the front stages (keyframes, head fit, targets) and
+then the fitting variants through the same file-level entry points as the pipeline:
+
+- ``prior``: the prior network's prediction on the reference keyframe (no optimisation),
+- ``stage1``: single-view fit (Im2Haircut baseline),
+- ``stage2``: the full method (6 keyframes), and the ablations ``no_deformation``,
+  ``no_smoothness``, ``no_visibility`` (``no_pca`` with ``--all-variants``), ``kf1``, ``kf3``.
+
+Each result is scored against the ground truth (Chamfer_pts in m^2, Chamfer_angle in rad; see
+``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given).
+Every stage's outputs are cached under ``--work``: a second run only redoes what is missing, so
+the benchmark can be run in pieces (``--sequences``, ``--variants``).
+
+    .venv/bin/python benchmarks/quality.py --work results/benchmarks/quality --out results/benchmarks/quality.md
+    .venv/bin/python benchmarks/quality.py --quick        # 2 sequences, short schedules (smoke run)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import time
+from pathlib import Path
+
+import numpy as np
+
+SEQUENCES = [("bob", 1000), ("shoulder_straight", 1001), ("side_parted", 1002), ("bangs", 1003),
+             ("wavy", 1004), ("short_straight", 1005)]
+STAGE2_VARIANTS = {
+    "stage2": {},
+    "no_deformation": {"switches": {"use_deformation": False}},
+    "no_smoothness": {"switches": {"use_smoothness": False}},
+    "no_visibility": {"switches": {"use_visibility": False}},
+    "no_pca": {"switches": {"use_pca_consistency": False}},
+    "kf1": {"n_keyframes": 1},
+    "kf3": {"n_keyframes": 3},
+}
+DEFAULT_VARIANTS = ["prior", "stage1", "stage2", "no_deformation", "no_smoothness", "no_visibility", "kf1", "kf3"]
+LABELS = {"prior": "Prior prediction alone", "stage1": "Stage 1 (single view, Im2Haircut-style)",
+          "stage2": "**Stage 2 (Vid2Haircut, 6 keyframes)**", "no_deformation": "Stage 2 w/o deformation MLP",
+          "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
+          "no_pca": "Stage 2 w/o PCA consistency", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes"}
+QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
+
+log = logging.getLogger("quality")
+
+
+def prepare(work: Path, family: str, seed: int, n_frames: int) -> dict:
+    """Synthesise one sequence and run the front stages (cached)."""
+    from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
+    from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
+
+    root, subject = work / "data", f"{family}_{seed}"
+    seq_dir = root / subject / "sequences" / "HAIR"
+    front = work / "front" / subject
+    if not (seq_dir / "ground_truth" / "meta.json").is_file():
+        synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames),
+                            overwrite=True)
+    if not (front / "keyframes.json").is_file():
+        run_keyframes(root, subject, "HAIR", front)
+    if not (front / "head.npz").is_file():
+        run_fit_head(root, subject, "HAIR", front / "keyframes.json", front)
+    if not (front / "targets" / "targets.json").is_file():
+        run_targets(root, subject, "HAIR", front / "head.npz", front / "targets")
+    return {"root": root, "subject": subject, "keyframes": front / "keyframes.json", "head": front / "head.npz",
+            "targets": front / "targets", "gt": seq_dir / "ground_truth" / "strands.npz"}
+
+
+def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
+    """Dense strands of the prior's prediction on the reference keyframe (cached)."""
+    from vid2haircut.fit.data import load_fit_data
+    from vid2haircut.fit.outputs import dense_strands
+    from vid2haircut.fit.stage1 import initial_hairmap, prior_view_input
+    from vid2haircut.io.strand_formats import save_strands
+    from vid2haircut.prior.model import load_prior
+
+    path = out / "strands.npz"
+    if not path.is_file():
+        data = load_fit_data(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"],
+                             n_keyframes=1, occlude_head=False)
+        net, codec, _ = load_prior(prior_dir)
+        z, mask = initial_hairmap(data, codec, (net, prior_view_input(data, net.cfg.input_size, "cpu")))
+        save_strands(path, dense_strands(z, mask, data.head, codec, 10000, 0, data.head_model))
+    return path
+
+
+def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dict) -> tuple[Path, float]:
+    """Run one variant (cached) -> (strands.npz, fit seconds)."""
+    from vid2haircut.fit.pipeline import run_stage1, run_stage2
+
+    out = work / "runs" / seq["subject"] / name
+    common = (seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"])
+    if name == "prior":
+        return prior_strands(seq, prior_dir, out), 0.0
+    rec = out / ("stage1.json" if name == "stage1" else "stage2.json")
+    if not rec.is_file():
+        if name == "stage1":
+            run_stage1(*common, out, prior_dir=prior_dir, settings=settings.get("stage1"), progress=False)
+        else:
+            s1 = work / "runs" / seq["subject"] / "stage1"
+            if not (s1 / "stage1.json").is_file():
+                run_variant(seq, "stage1", work, prior_dir, settings)
+            over = _merge(settings.get("stage2", {}), STAGE2_VARIANTS[name])
+            run_stage2(*common, s1, out, settings=over, progress=False)
+    return out / "strands.npz", float(json.loads(rec.read_text())["fit_seconds"])
+
+
+def _merge(a: dict, b: dict) -> dict:
+    out = json.loads(json.dumps(a))
+    for k, v in b.items():
+        out[k] = _merge(out.get(k, {}), v) if isinstance(v, dict) else v
+    return out
+
+
+def score(pred: Path, gt: Path, cache: Path) -> dict:
+    """Metrics of a strand file against the ground truth (cached next to the prediction)."""
+    from vid2haircut.evaluate.metrics import evaluate_strands
+    from vid2haircut.io.atomic import write_json
+    from vid2haircut.io.strand_formats import load_strands
+
+    if cache.is_file() and cache.stat().st_mtime >= pred.stat().st_mtime:
+        return json.loads(cache.read_text())
+    m = evaluate_strands(load_strands(pred), load_strands(gt), max_points=200_000)
+    write_json(cache, m)
+    return m
+
+
+def table(results: dict, seqs: list[str], variants: list[str]) -> str:
+    """Markdown: one row per variant; Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence and mean."""
+    head = "| method | " + " | ".join(seqs) + " | **mean CD_pts (1e-4 m^2)** | **mean CD_angle (rad)** |"
+    lines = [head, "|" + "---|" * (len(seqs) + 3)]
+    for v in variants:
+        cells, pts, ang = [], [], []
+        for s in seqs:
+            m = results.get((s, v))
+            if m is None:
+                cells.append("-")
+                continue
+            pts.append(m["chamfer_pts"])
+            ang.append(m["chamfer_angle"])
+            cells.append(f"{m['chamfer_pts'] * 1e4:.3f} / {m['chamfer_angle']:.3f}")
+        mean = (f"{np.mean(pts) * 1e4:.3f} | {np.mean(ang):.4f}" if len(pts) == len(seqs) else
+                (f"({np.mean(pts) * 1e4:.3f}) | ({np.mean(ang):.4f})" if pts else "- | -"))
+        lines.append(f"| {LABELS[v]} | " + " | ".join(cells) + f" | {mean} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--work", default="results/benchmarks/quality", help="cache / work folder")
+    p.add_argument("--out", default=None, help="also write the Markdown table here")
+    p.add_argument("--prior-dir", default=None, help="trained prior (default: the packaged one)")
+    p.add_argument("--sequences", default=None, help="comma-separated family_seed names (default: the first 4)")
+    p.add_argument("--variants", default=",".join(DEFAULT_VARIANTS), help="comma-separated variants")
+    p.add_argument("--all-variants", action="store_true", help="also the w/o PCA-consistency ablation")
+    p.add_argument("--settings", default=None, help='JSON {"stage1": {...}, "stage2": {...}} overrides')
+    p.add_argument("--frames", type=int, default=48, help="frames per synthetic sequence")
+    p.add_argument("--threads", type=int, default=None, help="torch threads")
+    p.add_argument("--quick", action="store_true", help="2 sequences, short schedules")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    import torch
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    import vid2haircut
+
+    prior_dir = Path(args.prior_dir) if args.prior_dir else Path(vid2haircut.__file__).parent / "data/prior/default"
+    work = Path(args.work)
+    settings = json.loads(args.settings) if args.settings else (QUICK if args.quick else {})
+    pool = {f"{f}_{s}": (f, s) for f, s in SEQUENCES}
+    names = args.sequences.split(",") if args.sequences else list(pool)[: 2 if args.quick else 4]
+    variants = args.variants.split(",") + (["no_pca"] if args.all_variants else [])
+    results, times = {}, {}
+    for name in names:
+        if name not in pool:
+            raise SystemExit(f"unknown sequence {name!r}; known: {sorted(pool)}")
+        t0 = time.perf_counter()
+        seq = prepare(work, *pool[name], args.frames)
+        log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
+        for v in variants:
+            strands, secs = run_variant(seq, v, work, prior_dir, settings)
+            results[(name, v)] = score(strands, seq["gt"], strands.with_name("metrics.json"))
+            times[(name, v)] = secs
+            log.info("%s %s: CD_pts %.3e CD_angle %.4f (%.0fs)", name, v, results[(name, v)]["chamfer_pts"],
+                     results[(name, v)]["chamfer_angle"], secs)
+    md = table(results, names, variants)
+    timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants if v != "prior")
+    text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
+            f"Mean fit time per variant (this machine): {timing}\n")
+    print(text)
+    if args.out:
+        from vid2haircut.io.atomic import write_text
+
+        write_text(args.out, text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

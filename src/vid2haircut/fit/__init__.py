@@ -1,0 +1,17 @@
+"""Fitting stages: Stage 1 (single view, Im2Haircut baseline) and Stage 2 (Vid2Haircut joint refinement).
+
+- :mod:`.config`: dataclass configs (loss weights, schedule, ablation switches) and ``--settings`` overrides.
+- :mod:`.data`: keyframes, head poses, targets and cameras as tensors at the fitting resolution.
+- :mod:`.losses`: the loss terms; :mod:`.scene`: guides of a map, rendering, image terms.
+- :mod:`.visibility`: visibility-aware gradient masking; :mod:`.deform`: the deformation MLP.
+- :mod:`.trainer`: sums the weighted loss dict and steps; :mod:`.stage1`, :mod:`.stage2`: the models.
+- :mod:`.outputs`: artifacts; :mod:`.pipeline`: file-level ``run_stage1`` / ``run_stage2``.
+"""
+
+from vid2haircut.fit.config import LossWeights, RenderSettings, Stage1Config, Stage2Config, Switches, apply_overrides
+from vid2haircut.fit.data import FitData, load_fit_data, make_fit_data
+from vid2haircut.fit.stage1 import FitResult, fit_stage1
+from vid2haircut.fit.stage2 import fit_stage2
+
+__all__ = ["LossWeights", "RenderSettings", "Stage1Config", "Stage2Config", "Switches", "apply_overrides",
+           "FitData", "load_fit_data", "make_fit_data", "FitResult", "fit_stage1", "fit_stage2"]

@@ -1,0 +1,187 @@
+"""Loss terms, visibility gate and config overrides of vid2haircut.fit (tiny tensors, physical checks)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from vid2haircut.fit.config import LossWeights, Stage2Config, apply_overrides, load_settings
+from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
+from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
+                                    silhouette_loss, smoothness_losses, texel_graph)
+from vid2haircut.fit.trainer import History, weighted_total
+from vid2haircut.fit.visibility import VisibilityGate, point_visibility
+
+
+def _doubled(angle: torch.Tensor) -> torch.Tensor:
+    return torch.stack([torch.cos(2 * angle), torch.sin(2 * angle)], -1)
+
+
+def test_silhouette_l1():
+    a = torch.zeros(1, 4, 4)
+    b = torch.zeros(1, 4, 4)
+    b[0, :2] = 1.0
+    assert float(silhouette_loss(a, a)) == 0.0
+    assert float(silhouette_loss(a, b)) == pytest.approx(0.5)
+
+
+def test_direction_is_undirected_and_weighted():
+    ang = torch.tensor([[[0.3, 1.2], [2.0, 0.1]]])
+    mask = torch.ones(1, 2, 2, dtype=torch.bool)
+    w = torch.ones(1, 2, 2)
+    # the same direction, and the opposite direction (a + pi has the same doubled angle): zero loss
+    assert float(direction_loss(_doubled(ang), mask, _doubled(ang + math.pi), w)) == pytest.approx(0.0, abs=1e-6)
+    # perpendicular: o=(1,0), o_hat=(0,1): min(|o-o_hat|_1, |o+o_hat|_1) = 2
+    zero, right = torch.zeros(1, 1, 1), torch.full((1, 1, 1), math.pi / 2)
+    one = torch.ones(1, 1, 1)
+    assert float(direction_loss(_doubled(zero), one.bool(), _doubled(right), one)) == pytest.approx(2.0, abs=1e-5)
+    # a zero-weight pixel does not count; an empty rendered pixel gives no NaN gradient
+    pred = _doubled(torch.tensor([[[0.0, 0.0]]])).clone()
+    pred[0, 0, 1] = 0.0
+    pred.requires_grad_(True)
+    tgt = _doubled(torch.tensor([[[0.0, 1.0]]]))
+    loss = direction_loss(pred, torch.tensor([[[True, False]]]), tgt, torch.tensor([[[1.0, 1.0]]]))
+    loss.backward()
+    assert float(loss.detach()) == pytest.approx(0.0, abs=1e-6) and torch.isfinite(pred.grad).all()
+
+
+def test_depth_invariant_to_scale_and_offset():
+    g = torch.Generator().manual_seed(0)
+    tgt = torch.rand(1, 8, 8, generator=g)
+    valid = torch.ones(1, 8, 8, dtype=torch.bool)
+    lo, hi = torch.quantile(tgt.flatten(), torch.tensor([0.05, 0.95]))
+    tgt_n = (tgt - lo) / (hi - lo)
+    pred = 0.7 + 0.05 * tgt                      # metres: an affine copy of the target
+    assert float(depth_loss(pred, valid, tgt_n, valid)) == pytest.approx(0.0, abs=1e-5)
+    assert float(depth_loss(0.7 - 0.05 * tgt, valid, tgt_n, valid)) > 0.3      # reversed order is wrong
+    # too few common pixels: zero, still differentiable
+    small = torch.zeros_like(valid)
+    small[0, 0, :3] = True
+    assert float(depth_loss(pred, small, tgt_n, small)) == 0.0
+
+
+def test_penetration_counts_only_inside():
+    sdf = (lambda p: p.norm(dim=-1) - 0.1)       # sphere of 10 cm
+    inside = torch.tensor([[0.0, 0.0, 0.05]])
+    outside = torch.tensor([[0.0, 0.0, 0.2]])
+    assert float(penetration_loss(outside, sdf)) == 0.0
+    assert float(penetration_loss(torch.cat([inside, outside]), sdf)) == pytest.approx(0.025)
+
+
+def test_texel_graph_and_smoothness():
+    # guides on a full 3x3 block of a 4x4 map: 6 horizontal + 6 vertical pairs
+    idx = torch.tensor([r * 4 + c for r in range(3) for c in range(3)])
+    g = texel_graph(idx, 4, back_v=0.3)
+    assert g.pairs.shape == (12, 2)
+    assert int(g.back.sum()) == 5                 # pairs whose first texel is in row 0 (v = 0.125 < 0.3)
+    line = torch.stack([torch.zeros(5), torch.zeros(5), torch.linspace(0, 0.1, 5)], -1)
+    same = line[None].repeat(9, 1, 1)
+    out = smoothness_losses(same, g, back_weight=100.0)
+    assert float(out["smooth_length"]) == pytest.approx(0.0, abs=1e-7)
+    assert float(out["smooth_direction"]) == pytest.approx(0.0, abs=1e-6)
+    longer = same.clone()
+    longer[7] = longer[7] * 1.5                    # texel (2,1): 5 cm longer, in 3 pairs, none in the back
+    out = smoothness_losses(longer, g, back_weight=100.0)
+    assert float(out["smooth_length"]) == pytest.approx(3 * 0.05 / 12, rel=1e-4)
+    assert float(out["smooth_direction"]) == pytest.approx(0.0, abs=1e-6)
+    top = same.clone()
+    top[1] = top[1] * 1.5                          # texel (0,1): its 3 pairs are all back pairs (x100)
+    out = smoothness_losses(top, g, back_weight=100.0)
+    assert float(out["smooth_length"]) == pytest.approx(3 * 100 * 0.05 / 12, rel=1e-4)
+
+
+def test_pca_consistency_flows_from_observed_to_unobserved():
+    z = torch.zeros(2, 3, 3)
+    z[:, 1, 1] = 1.0
+    z.requires_grad_(True)
+    hair = torch.ones(3, 3, dtype=torch.bool)
+    everything = torch.ones(3, 3, dtype=torch.bool)
+    assert float(pca_consistency_loss(z, hair, everything)) == 0.0
+    observed = torch.ones(3, 3, dtype=torch.bool)
+    observed[1, 1] = False                        # the centre is unseen: pulled to its neighbours' mean (0)
+    loss = pca_consistency_loss(z, hair, observed)
+    loss.backward()
+    assert float(loss) == pytest.approx(1.0)
+    assert float(z.grad[:, 1, 1].abs().sum()) > 0
+    grad_obs = z.grad.clone()
+    grad_obs[:, 1, 1] = 0
+    assert float(grad_obs.abs().sum()) == 0.0      # observed neighbours are not pulled towards the unseen texel
+
+
+def test_motion_loss():
+    assert float(motion_loss(torch.full((2, 3, 3), 0.01))) == pytest.approx(3e-4)
+
+
+def test_visibility_gate_masks_gradient_per_frame():
+    canon = torch.randn(4, 5, 3, requires_grad=True)
+    gate = VisibilityGate()
+    per_frame = gate(canon[None].expand(2, -1, -1, -1))
+    seg_vis = torch.zeros(2, 4, 4, dtype=torch.bool)
+    seg_vis[0, 1, 2] = True                       # frame 0 sees segment 2 of strand 1 (points 2, 3)
+    seg_vis[1, 3] = True                          # frame 1 sees strand 3 entirely
+    gate.set_visibility(seg_vis)
+    (per_frame * torch.arange(1.0, 3.0)[:, None, None, None]).sum().backward()
+    expect = torch.zeros(4, 5)
+    expect[1, 2:4] += 1.0
+    expect[3] += 2.0
+    assert torch.equal(canon.grad[..., 0], expect)
+    assert torch.equal(point_visibility(torch.tensor([[True, False, False]])), torch.tensor([[True, True, False, False]]))
+    # without set_visibility the backward refuses to run silently
+    per_frame = gate(canon[None].expand(2, -1, -1, -1))
+    with pytest.raises(RuntimeError, match="set_visibility"):
+        per_frame.sum().backward()
+    off = VisibilityGate(enabled=False)
+    canon.grad = None
+    off(canon[None].expand(2, -1, -1, -1)).sum().backward()
+    assert torch.equal(canon.grad, torch.full_like(canon, 2.0))
+
+
+def test_overrides_nested_dotted_and_errors(tmp_path):
+    cfg = apply_overrides(Stage2Config(), {"switches": {"use_deformation": False}, "weights.depth": 0.5,
+                                           "iterations": 7})
+    assert cfg.switches.use_deformation is False and cfg.weights.depth == 0.5 and cfg.iterations == 7
+    assert Stage2Config().switches.use_deformation is True          # the default is untouched
+    with pytest.raises(ValueError, match="unknown key 'switches.use_magic'"):
+        apply_overrides(Stage2Config(), {"switches.use_magic": True})
+    with pytest.raises(ValueError, match="true or false"):
+        apply_overrides(Stage2Config(), {"switches.use_visibility": 1})
+    with pytest.raises(ValueError, match="integer"):
+        apply_overrides(Stage2Config(), {"iterations": 2.5})
+    p = tmp_path / "s.json"
+    p.write_text('{"iterations": 3}')
+    assert load_settings(str(p)) == {"iterations": 3} and load_settings('{"a": 1}') == {"a": 1}
+    with pytest.raises(ValueError, match="not valid JSON"):
+        load_settings("{nope")
+
+
+def test_weighted_total_and_history():
+    w = LossWeights()
+    total = weighted_total({"silhouette": torch.tensor(2.0), "depth": torch.tensor(1.0)}, w)
+    assert float(total) == pytest.approx(2.0 + w.depth)
+    with pytest.raises(ValueError, match="no weight"):
+        weighted_total({"bogus": torch.tensor(1.0)}, w)
+    h = History()
+    h.add(0, {"a": 1.0}, 1.0)
+    h.add(1, {"a": 2.0, "b": 3.0}, 5.0)
+    assert np.isnan(h.terms["b"][0]) and History.from_dict(h.to_dict()).terms["a"] == [1.0, 2.0]
+
+
+def test_downsample_targets_and_intrinsics():
+    h = w = 8
+    ang = np.full((h, w), 0.25 * math.pi, np.float32)
+    ang[:, 4:] = 0.25 * math.pi + math.pi - 1e-3       # nearly the same undirected direction across the wrap
+    t = {"mask": np.ones((h, w), np.float32), "angle": ang, "confidence": np.ones((h, w), np.float32),
+         "depth": np.linspace(0, 1, h * w, dtype=np.float32).reshape(h, w), "depth_valid": np.ones((h, w), bool)}
+    lo = downsample_targets(t, 4, 4)
+    a = np.remainder(0.5 * np.arctan2(lo["direction"][..., 1], lo["direction"][..., 0]), math.pi)
+    assert np.allclose(a, 0.25 * math.pi, atol=2e-3) and lo["confidence"].min() > 0.99
+    assert lo["depth_valid"].all() and lo["mask"].shape == (4, 4)
+    K = np.array([[100.0, 0, 3.5], [0, 100.0, 3.5], [0, 0, 1]])
+    Ks = scale_intrinsics(K, 0.5, 0.5)
+    assert Ks[0, 0] == 50.0 and Ks[0, 2] == pytest.approx(1.5)     # the image centre stays the centre
+    scores = {1: {"yaw_deg": 0.0}, 2: {"yaw_deg": 10.0}, 3: {"yaw_deg": 50.0}, 4: {"yaw_deg": -40.0}}
+    assert order_keyframes([1, 2, 3, 4], 1, scores) == [1, 3, 4, 2]
+    assert order_keyframes([1, 2, 3, 4], 2, {}, 2) == [2, 1]

@@ -1,0 +1,167 @@
+"""Stage 2 (joint multi-keyframe refinement) on the toy problem: loss decreases, visibility masking,
+deformation field properties, determinism, resume, file-level run through the command line."""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from vid2haircut.fit.config import Stage2Config, apply_overrides
+from vid2haircut.fit.deform import DeformationField, DeformConfig, deformation_weight
+from vid2haircut.fit.scene import image_losses, render_frames
+from vid2haircut.fit.stage2 import Stage2Model, checkpoint_state, fit_stage2
+from vid2haircut.fit.toy import toy_problem, write_toy_files
+
+FAST = {"iterations": 8, "canonical_steps": 3, "ramp_steps": 2, "lr_z": 0.1, "render": {"n_points": 16},
+        "n_dense": 300, "checkpoint_every": 3}
+
+
+@pytest.fixture(scope="module")
+def toy():
+    return toy_problem(size=40, n_frames=3, map_res=12, k=12)
+
+
+def _cfg(**extra) -> Stage2Config:
+    return apply_overrides(Stage2Config(), {**FAST, **extra})
+
+
+def _start(toy):
+    """Initial map: the mean strand on every scalp texel."""
+    return torch.zeros_like(toy.z_gt), toy.mask.clone()
+
+
+def test_loss_decreases(toy):
+    z0, m0 = _start(toy)
+    res = fit_stage2(toy.data, toy.codec, _cfg(iterations=12), z0, m0, progress=False)
+    t = res.history.terms
+    image = [sum(t[k][i] for k in ("silhouette", "direction")) for i in (0, -1)]
+    assert image[1] < 0.8 * image[0]
+    assert not np.isnan(t["motion"][-1]) and np.isnan(t["motion"][0])    # the MLP joins after the canonical steps
+    assert res.render.silhouette.shape == (3, 40, 40)
+
+
+def test_mlp_off_offsets_exactly_zero(toy):
+    z0, m0 = _start(toy)
+    model = Stage2Model(toy.data, toy.codec, _cfg(switches={"use_deformation": False}), z0, m0)
+    assert model.deform is None and model.ramp(100) == 0.0
+    canon = model.canonical()[:, model.layout.render_index]
+    frames = torch.arange(3)
+    moved, offs = model.deformed(canon, frames, 1.0)
+    assert torch.count_nonzero(offs) == 0 and torch.equal(moved, canon[None].expand(3, -1, -1, -1))
+    assert "motion" not in model.get_loss_dict(50)
+    # with the MLP on, the canonical steps are exactly rigid too
+    on = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0)
+    assert on.ramp(0) == 0.0 and on.ramp(FAST["canonical_steps"]) > 0.0
+    assert torch.count_nonzero(on.deformed(canon, frames, on.ramp(0))[1]) == 0
+
+
+def test_deformation_weight_zero_at_root():
+    cfg = DeformConfig()
+    u = torch.linspace(0, 1, 32)
+    w = deformation_weight(u, cfg.pinned_fraction)
+    assert float(w[0]) == 0.0 and float(w[-1]) == pytest.approx(1.0)
+    assert torch.all(w[u <= cfg.pinned_fraction] == 0) and torch.all(torch.diff(w) >= 0)
+    field = DeformationField(2, 5, cfg, seed=1)
+    with torch.no_grad():                       # a trained-looking field: non-zero outputs everywhere
+        field.mlp[-1].weight.normal_(0, 1.0, generator=torch.Generator().manual_seed(2))
+        field.mlp[-1].bias.fill_(0.5)
+    t = torch.linspace(0, 1, 32)[:, None]
+    pts = torch.cat([0.02 * t, -0.2 * t, 0.01 * torch.sin(9 * t)], -1)[None].repeat(5, 1, 1) + torch.tensor([0, 0.1, 0])
+    moved, off = field(pts, 1)
+    pinned = u <= cfg.pinned_fraction
+    assert torch.count_nonzero(off[:, pinned]) == 0 and float(off[:, -1].detach().norm(dim=-1).min()) > 1e-4
+    assert float(off.norm(dim=-1).max()) <= cfg.max_offset * 2 ** 0.5 + 1e-7
+    assert torch.equal(moved[:, 0], pts[:, 0])                              # the root never moves
+    seg = lambda p: (p[:, 1:] - p[:, :-1]).norm(dim=-1)                     # noqa: E731
+    assert torch.allclose(seg(moved), seg(pts), atol=1e-6)                  # lengths restored
+
+
+def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
+    z0, m0 = _start(toy)
+    grads = {}
+    for use in (True, False):
+        model = Stage2Model(toy.data, toy.codec, _cfg(switches={"use_visibility": use}), z0, m0)
+        canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
+        frames = torch.tensor([1])                                          # one side view
+        moved, _ = model.deformed(canon, frames, 0.0)
+        out = render_frames(moved, toy.data, frames, model.cfg.render)
+        model.gate.set_visibility(out.visibility)
+        loss = image_losses(out, toy.data, frames)
+        (loss["silhouette"] + loss["direction"]).backward()
+        grads[use] = (canon.grad.norm(dim=-1), out.visibility[0])
+    g_on, vis = grads[True]
+    g_off, _ = grads[False]
+    from vid2haircut.fit.visibility import point_visibility
+
+    pv = point_visibility(vis)
+    assert pv.any() and (~pv).any()
+    assert float(g_on[~pv].abs().max()) == 0.0                            # invisible points get nothing
+    assert float(g_off[~pv].abs().max()) > 0.0                            # ... which the gate really removed
+    assert torch.allclose(g_on[pv], g_off[pv])                            # visible ones keep their gradient
+
+
+def test_same_seed_same_output_and_resume(toy):
+    z0, m0 = _start(toy)
+    states = {}
+
+    def keep(step, model, trainer):
+        if step == 3:
+            states["ck"] = copy.deepcopy(checkpoint_state(step, model, trainer))
+
+    a = fit_stage2(toy.data, toy.codec, _cfg(), z0, m0, progress=False, on_step=keep)
+    b = fit_stage2(toy.data, toy.codec, _cfg(), z0, m0, progress=False)
+    assert torch.equal(a.z, b.z) and torch.equal(a.guides, b.guides)
+    for pa, pb in zip(a.extra["deform"].parameters(), b.extra["deform"].parameters()):
+        assert torch.equal(pa, pb)
+    c = fit_stage2(toy.data, toy.codec, _cfg(), z0, m0, progress=False, resume=states["ck"])
+    assert len(c.history.total) == FAST["iterations"]
+    assert torch.allclose(a.z, c.z, atol=1e-6)
+    other = fit_stage2(toy.data, toy.codec, _cfg(seed=5), z0, m0, progress=False)
+    assert not torch.equal(other.extra["deform"].frame_codes.weight, a.extra["deform"].frame_codes.weight)
+
+
+def _stage2_parser() -> argparse.ArgumentParser:
+    from vid2haircut.cli import stage2
+
+    parser = argparse.ArgumentParser()
+    stage2.register(parser.add_subparsers())
+    return parser
+
+
+def test_files_cli_outputs_and_resume(toy, tmp_path):
+    from vid2haircut.fit.pipeline import run_stage1
+    from vid2haircut.io.strand_formats import load_strands
+
+    files = write_toy_files(toy, tmp_path / "data")
+    s1 = tmp_path / "s1"
+    run_stage1(files["dataset_root"], "toy", files["keyframes"], files["head"], files["targets"], s1,
+               codec_path=files["codec"], progress=False,
+               settings={"iterations": 2, "map_res": 12, "render": {"n_points": 16, "size": 40}, "n_dense": 200})
+    out = tmp_path / "s2"
+    argv = ["stage2", "--root", str(files["dataset_root"]), "--subject", "toy", "--seq", "HAIR",
+            "--keyframes", str(files["keyframes"]), "--head", str(files["head"]), "--targets", str(files["targets"]),
+            "--stage1-dir", str(s1), "--out", str(out), "--no-progress",
+            "--settings", json.dumps({**FAST, "render": {"n_points": 16, "size": 40}})]
+    args = _stage2_parser().parse_args(argv)
+    assert args.func(args) == 0
+    for rel in ("strands.npz", "guides.npz", "hairmap.npz", "deform.pt", "checkpoint.pt", "loss_curve.png",
+                "stage2.json", *(f"renders/frame_{t:05d}.png" for t in range(3))):
+        assert (out / rel).is_file(), rel
+    dense = load_strands(out / "strands.npz")
+    assert dense.n_strands == 300 and dense.head_model == "proxy-v1"
+    first = json.loads((out / "stage2.json").read_text())
+    assert first["resumed_from_step"] is None and first["keyframes"] == [0, 1, 2]
+    assert args.func(args) == 0                                             # again: resumes at the end
+    again = json.loads((out / "stage2.json").read_text())
+    assert again["resumed_from_step"] == FAST["iterations"] - 1
+    assert np.array_equal(load_strands(out / "strands.npz").points, dense.points)
+    # fewer keyframes is one setting
+    args = _stage2_parser().parse_args(argv[:-1] + [json.dumps({**FAST, "iterations": 2, "n_keyframes": 1,
+                                                                "render": {"n_points": 16, "size": 40}})])
+    assert args.func(args) == 0
+    assert json.loads((out / "stage2.json").read_text())["keyframes"] == [0]
