@@ -40,3 +40,8 @@ def select_sequences(dataset_root: str | Path, synthetic: set[tuple[str, str]],
         raise ValueError(f"config 'sequences' names {missing}, found neither under {dataset_root} "
                          "nor in synth.sequences")
     return sorted(set(chosen))
+
+
+def bundled_prior_dir() -> Path:
+    """Folder of the prior committed with the package (codec.npz, prior.pt, prior.json)."""
+    return Path(__file__).resolve().parent / "data" / "prior" / "default"

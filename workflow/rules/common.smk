@@ -1,10 +1,12 @@
 # Shared set-up: config validation, sequence discovery, wildcard constraints, target lists.
+import json
+import shlex
 import sys
 from pathlib import Path
 
 from snakemake.utils import validate
 
-from vid2haircut.workflow_support import select_sequences
+from vid2haircut.workflow_support import bundled_prior_dir, select_sequences
 
 
 validate(config, schema="../schemas/config.schema.yaml")
@@ -16,6 +18,11 @@ SYNTH = config.get("synth", {})
 CAMERA_ARG = f"--serial {config['camera']}" if config.get("camera") else ""
 SYNTH_SEQUENCES = {(s["subject"], s["seq"]): s for s in SYNTH.get("sequences", [])}
 SEQUENCES = select_sequences(DATASET_ROOT, set(SYNTH_SEQUENCES), config.get("sequences"))
+VARIANTS = config["variants"]
+if config["prior"]["source"] == "bundled":
+    PRIOR_FILES = [str(bundled_prior_dir() / n) for n in ("prior.pt", "codec.npz", "prior.json")]
+else:
+    PRIOR_FILES = [f"resources/prior/{config['prior']['setting']}/{n}" for n in ("prior.pt", "codec.npz", "prior.json")]
 SUBJECTS = sorted({s for s, _ in SEQUENCES}) or ["none"]
 SEQ_NAMES = sorted({q for _, q in SEQUENCES}) or ["none"]
 
@@ -23,6 +30,7 @@ SEQ_NAMES = sorted({q for _, q in SEQUENCES}) or ["none"]
 wildcard_constraints:
     subject="|".join(SUBJECTS),
     seq="|".join(SEQ_NAMES),
+    variant="|".join(VARIANTS) or "none",
 
 
 def synth_record(wildcards):
@@ -41,6 +49,62 @@ def sequence_ready(wildcards):
     return str(DATASET_ROOT / wildcards.subject / "calibration" / "camera_params.json")
 
 
+def shell_json(obj):
+    """A JSON object as one shell word (for `--settings`)."""
+    return shlex.quote(json.dumps(obj, sort_keys=True, separators=(",", ":")))
+
+
+def variant_settings(variant):
+    """Stage-2 settings of an ablation variant: the config's stage2 settings plus its overrides."""
+    return {**config["fit"]["stage2"], **(VARIANTS[variant] or {})}
+
+
+def gt_path(subject, seq):
+    return DATASET_ROOT / subject / "sequences" / seq / "ground_truth" / "strands.npz"
+
+
+def has_ground_truth(subject, seq):
+    return (subject, seq) in SYNTH_SEQUENCES or gt_path(subject, seq).exists()
+
+
+def ground_truth_strands(wildcards):
+    return str(gt_path(wildcards.subject, wildcards.seq))
+
+
+def gt_arg(wildcards):
+    if has_ground_truth(wildcards.subject, wildcards.seq):
+        return f"--gt {gt_path(wildcards.subject, wildcards.seq)}"
+    return ""
+
+
+def result_strands(wildcards):
+    """Strand file that a (stage, variant) evaluation scores."""
+    base = f"results/stage1/{wildcards.subject}/{wildcards.seq}"
+    if wildcards.stage == "prior":
+        return f"{base}/prior_strands.npz"
+    if wildcards.stage == "stage1":
+        return f"{base}/strands.npz"
+    return f"results/stage2/{wildcards.subject}/{wildcards.seq}/{wildcards.variant}/strands.npz"
+
+
+def _runs():
+    """(subject, seq, stage, variant) of every reconstruction; prior and stage1 are variant 'single_view'."""
+    runs = []
+    for s, q in SEQUENCES:
+        runs += [(s, q, "prior", "single_view"), (s, q, "stage1", "single_view")]
+        runs += [(s, q, "stage2", v) for v in VARIANTS]
+    return runs
+
+
+def evaluation_targets():
+    return [f"results/evaluate/{s}/{q}/{st}/{v}/metrics.json" for s, q, st, v in _runs() if has_ground_truth(s, q)]
+
+
+def no_ground_truth_args():
+    labels = [f"{s}/{q}/{st}/{v}" for s, q, st, v in _runs() if not has_ground_truth(s, q)]
+    return " ".join(f"--no-gt {lab}" for lab in labels)
+
+
 def expand_sequences(pattern):
     return [pattern.format(subject=s, seq=q) for s, q in SEQUENCES]
 
@@ -52,5 +116,8 @@ def all_targets():
         if (s, q) in SYNTH_SEQUENCES
     ]
     targets.append("resources/head/proxy-v1/head.obj")
-    targets += expand_sequences("results/targets/{subject}/{seq}")
+    targets += expand_sequences("results/figures/{subject}/{seq}/coverage.png")
+    targets += [f"results/figures/{s}/{q}/{v}/turntable.png" for s, q in SEQUENCES for v in VARIANTS]
+    if SEQUENCES:
+        targets.append("results/summary/metrics.csv")
     return targets

@@ -65,7 +65,13 @@ rule targets:
         ready=sequence_ready,
         head="results/fit_head/{subject}/{seq}/head.npz",
     output:
-        targets=directory("results/targets/{subject}/{seq}"),
+        targets=report(
+            directory("results/targets/{subject}/{seq}"),
+            patterns=["orientation_{t}.png"],
+            caption="../report/targets.rst",
+            category="{subject}/{seq}",
+            subcategory="3 targets",
+        ),
     params:
         cli=CLI,
         root=str(DATASET_ROOT),

@@ -4,6 +4,7 @@
 rule synthesize:
     output:
         meta=str(DATASET_ROOT / "{subject}" / "sequences" / "{seq}" / "ground_truth" / "meta.json"),
+        gt=str(DATASET_ROOT / "{subject}" / "sequences" / "{seq}" / "ground_truth" / "strands.npz"),
     params:
         cli=CLI,
         root=lambda w, output: str(Path(output.meta).parents[4]),

@@ -1,0 +1,94 @@
+# Metrics against ground truth (synthetic sequences), the summary table, and report figures.
+
+
+rule evaluate:
+    input:
+        strands=result_strands,
+        gt=ground_truth_strands,
+    output:
+        metrics="results/evaluate/{subject}/{seq}/{stage}/{variant}/metrics.json",
+    params:
+        cli=CLI,
+        n_points=config["evaluate"]["n_points"],
+        max_points=config["evaluate"]["max_points"],
+        seed=config["seed"],
+    wildcard_constraints:
+        stage="prior|stage1|stage2",
+        variant="|".join(["single_view", *VARIANTS]),
+    log:
+        "logs/evaluate/{subject}/{seq}/{stage}/{variant}.log",
+    benchmark:
+        "benchmarks/evaluate/{subject}/{seq}/{stage}/{variant}.tsv"
+    shell:
+        "{params.cli} evaluate --pred {input.strands} --gt {input.gt} --out {output.metrics}"
+        " --n-points {params.n_points} --max-points {params.max_points} --seed {params.seed} > {log} 2>&1"
+
+
+rule aggregate:
+    input:
+        metrics=evaluation_targets(),
+    output:
+        csv=report(
+            "results/summary/metrics.csv",
+            caption="../report/summary.rst",
+            category="summary",
+        ),
+        md="results/summary/metrics.md",
+    params:
+        cli=CLI,
+        no_gt=no_ground_truth_args(),
+    log:
+        "logs/aggregate/summary.log",
+    benchmark:
+        "benchmarks/aggregate/summary.tsv"
+    shell:
+        "{params.cli} aggregate --inputs {input.metrics} {params.no_gt}"
+        " --out-csv {output.csv} --out-md {output.md} > {log} 2>&1"
+
+
+rule turntable:
+    input:
+        strands="results/stage2/{subject}/{seq}/{variant}/strands.npz",
+        head="results/fit_head/{subject}/{seq}/head.npz",
+        ready=sequence_ready,
+    output:
+        png=report(
+            "results/figures/{subject}/{seq}/{variant}/turntable.png",
+            caption="../report/turntable.rst",
+            category="{subject}/{seq}",
+            subcategory="6 reconstruction ({variant})",
+        ),
+    params:
+        cli=CLI,
+        gt=lambda w: gt_arg(w),
+    log:
+        "logs/turntable/{subject}/{seq}/{variant}.log",
+    benchmark:
+        "benchmarks/turntable/{subject}/{seq}/{variant}.tsv"
+    shell:
+        "{params.cli} figures turntable --strands {input.strands} {params.gt} --head {input.head}"
+        " --out {output.png} > {log} 2>&1"
+
+
+rule coverage:
+    input:
+        keyframes="results/keyframes/{subject}/{seq}/keyframes.json",
+        head="results/fit_head/{subject}/{seq}/head.npz",
+        ready=sequence_ready,
+    output:
+        png=report(
+            "results/figures/{subject}/{seq}/coverage.png",
+            caption="../report/coverage.rst",
+            category="{subject}/{seq}",
+            subcategory="3 scalp coverage",
+        ),
+    params:
+        cli=CLI,
+        root=str(DATASET_ROOT),
+    log:
+        "logs/coverage/{subject}/{seq}.log",
+    benchmark:
+        "benchmarks/coverage/{subject}/{seq}.tsv"
+    shell:
+        "{params.cli} figures coverage --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        " --keyframes {input.keyframes} --head {input.head} --out {output.png} > {log} 2>&1"

@@ -1,0 +1,25 @@
+# The learned hair prior (strand codec + image-conditioned network), trained on generated hairstyles.
+# `prior: {source: bundled}` uses the artifact committed in the package (made by this same rule with
+# the default setting); `source: train` trains it here, once per setting (cached under resources/).
+
+
+rule train_prior:
+    output:
+        weights="resources/prior/{setting}/prior.pt",
+        codec="resources/prior/{setting}/codec.npz",
+        record="resources/prior/{setting}/prior.json",
+    params:
+        cli=CLI,
+        out_dir=lambda w, output: str(Path(output.weights).parent),
+        seed=config["seed"],
+        device=config["device"],
+    wildcard_constraints:
+        setting="default|tiny",
+    log:
+        "logs/train_prior/{setting}.log",
+    benchmark:
+        "benchmarks/train_prior/{setting}.tsv"
+    threads: 2
+    shell:
+        "{params.cli} train_prior --out-dir {params.out_dir} --setting {wildcards.setting}"
+        " --seed {params.seed} --device {params.device} --threads {threads} > {log} 2>&1"
