@@ -18,7 +18,7 @@ from pathlib import Path
 import torch
 
 from vid2haircut.io.atomic import write_json, write_text
-from vid2haircut.prior.evaluate_prior import evaluate_prior, markdown_summary, summarise
+from vid2haircut.evaluate.prior_eval import evaluate_prior, markdown_summary, summarise
 from vid2haircut.prior.model import load_prior
 from vid2haircut.prior.views import ViewConfig
 

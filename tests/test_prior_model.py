@@ -128,7 +128,7 @@ def test_tiny_training_lowers_loss_and_artifact_is_reused(tmp_path):
     assert not other.reused and other.record["seed"] == 1
 
     # the evaluation runs on unseen seeds and scores the prior and both baselines
-    from vid2haircut.prior.evaluate_prior import METHODS, evaluate_prior, markdown_summary
+    from vid2haircut.evaluate.prior_eval import METHODS, evaluate_prior, markdown_summary
     from vid2haircut.prior.train import SETTINGS
 
     net, codec, _ = load_prior(out)

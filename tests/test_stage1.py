@@ -43,12 +43,12 @@ def test_coarse_to_fine_cuts_fine_components(toy):
     z0, m0 = initial_hairmap(toy.data, toy.codec, None, 16)
     model = Stage1Model(toy.data, toy.codec, cfg, z0, m0)
     sum(model.get_loss_dict(0).values()).backward()
-    g = model.z.grad
+    g = model.zmap.delta.grad
     assert float(g[: cfg.coarse_components].abs().sum()) > 0
     assert float(g[cfg.coarse_components:].abs().sum()) == 0.0
-    model.z.grad = None
+    model.zmap.delta.grad = None
     sum(model.get_loss_dict(cfg.coarse_steps).values()).backward()
-    assert float(model.z.grad[cfg.coarse_components:].abs().sum()) > 0
+    assert float(model.zmap.delta.grad[cfg.coarse_components:].abs().sum()) > 0
 
 
 def test_prior_network_is_fine_tuned(toy):

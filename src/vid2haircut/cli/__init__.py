@@ -18,6 +18,7 @@ COMMANDS = [
     "keyframes",
     "fit_head",
     "targets",
+    "train_prior",
     "evaluate",
     "export",
     "aggregate",

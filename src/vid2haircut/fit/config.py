@@ -96,7 +96,9 @@ class Stage1Config:
     weight_decay_prior: float = 1.0e-3
     """AdamW weight decay when fine-tuning the prior network (method.md: 1e-3)."""
     lr_z: float = 0.03
-    """Adam learning rate when the hair map Z itself is the parameter (no prior; whitened units)."""
+    """Adam learning rate when the hair map Z itself is the parameter (whitened units)."""
+    lr_gain_power: float = 0.5
+    """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
     map_res: int = 32
     """Hair map resolution R when there is no prior (with a prior: the network's)."""
     mask_threshold: float = 0.5
@@ -128,7 +130,9 @@ class Stage2Config:
     frames_per_step: int = 0
     """Keyframes rendered per step (0 = all; fewer = a deterministic rotating subset)."""
     lr_z: float = 0.02
-    """Adam learning rate of the hair map Z (whitened units)."""
+    """Adam learning rate of the hair map Z (whitened units, for the first component)."""
+    lr_gain_power: float = 0.5
+    """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
     lr_mlp: float = 1.0e-2
     """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2)."""
     lr_codes: float = 1.0e-3

@@ -11,7 +11,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from vid2haircut.fit.config import RenderSettings
 from vid2haircut.fit.data import FitData
@@ -20,7 +20,7 @@ from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses"]
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "ZMap"]
 
 
 class GuideLayout(NamedTuple):
@@ -96,3 +96,29 @@ def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, 
     return {"silhouette": silhouette_loss(out.silhouette, mask_t),
             "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
             "depth": depth_loss(out.depth, out.mask.detach(), data.depth[fr], data.depth_valid[fr])}
+
+
+class ZMap(nn.Module):
+    """A coefficient map as an offset from its start: ``z = z0 + gain * delta`` (delta optimised).
+
+    ``gain_k = (s_k / s_0) ** power`` with ``s_k`` the codec's per-component standard deviations
+    (decreasing with k). Adam moves every parameter by about its learning rate per step whatever
+    the gradient's size, so in the whitened PCA space it would move the fine (high-frequency)
+    components as fast as the coarse ones and make strands wiggle; the gain slows the fine ones
+    down (power 0: plain whitened coefficients; power 1: equal steps in metres).
+
+    Args:
+        z0: (K,R,R) start map. scales: (K,) codec scales. power: see above.
+    """
+
+    def __init__(self, z0: Tensor, scales: Tensor, power: float) -> None:
+        super().__init__()
+        s = scales.detach().to(z0)
+        gain = (s / s[0]).clamp_min(1e-12) ** float(power)
+        self.register_buffer("z0", z0.detach().clone())
+        self.register_buffer("gain", gain[:, None, None])
+        self.delta = nn.Parameter(torch.zeros_like(z0))
+
+    def forward(self) -> Tensor:
+        """(K,R,R) current map."""
+        return self.z0 + self.gain * self.delta

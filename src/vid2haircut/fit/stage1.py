@@ -26,7 +26,7 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage1Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.losses import penetration_loss
-from vid2haircut.fit.scene import decode_layout, guide_layout, image_losses, render_frames
+from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.prior.codec import StrandCodec, component_mask
 from vid2haircut.render import StrandRender
@@ -110,7 +110,7 @@ class Stage1Model(nn.Module):
                 raise ValueError("Stage1Model: a prior net needs its input x")
             self.register_buffer("x", x)
         else:
-            self.z = nn.Parameter(z_init.detach().clone())
+            self.zmap = ZMap(z_init, codec.scales[: z_init.shape[0]], cfg.lr_gain_power)
         self.register_buffer("mask", mask.detach().clone())
         dev = mask.device
         self.layout = guide_layout(data.head, mask, cfg.mask_threshold, codec.n_points, cfg.render.n_points, dev)
@@ -119,7 +119,7 @@ class Stage1Model(nn.Module):
 
     def current_z(self, step: int | None = None) -> Tensor:
         """(K,R,R) map; during the coarse steps only the first components carry a gradient."""
-        z = self.net(self.x)[0][0] if self.net is not None else self.z
+        z = self.net(self.x)[0][0] if self.net is not None else self.zmap()
         if step is not None and step < self.cfg.coarse_steps and self.cfg.coarse_components < z.shape[0]:
             keep = component_mask(self.cfg.coarse_components, z.shape[0], z.device, z.dtype)[:, None, None]
             z = z * keep + z.detach() * (1.0 - keep)
@@ -130,7 +130,7 @@ class Stage1Model(nn.Module):
         if self.net is not None:
             return [{"params": [p for p in self.net.parameters() if p.requires_grad], "lr": self.cfg.lr_prior,
                      "weight_decay": self.cfg.weight_decay_prior, "name": "prior"}]
-        return [{"params": [self.z], "lr": self.cfg.lr_z, "name": "z"}]
+        return [{"params": [self.zmap.delta], "lr": self.cfg.lr_z, "name": "z"}]
 
     def make_optimizers(self) -> list[torch.optim.Optimizer]:
         """AdamW for the prior net, Adam for Z."""

@@ -26,7 +26,7 @@ from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
 from vid2haircut.fit.losses import motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses
-from vid2haircut.fit.scene import decode_layout, guide_layout, image_losses, render_frames
+from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.fit.visibility import VisibilityGate, texel_visible_fraction
@@ -51,7 +51,7 @@ class Stage2Model(nn.Module):
         super().__init__()
         self.data, self.codec, self.cfg = data, codec, cfg
         dev = z_init.device
-        self.z = nn.Parameter(z_init.detach().clone())
+        self.zmap = ZMap(z_init, codec.scales[: z_init.shape[0]].to(dev), cfg.lr_gain_power)
         self.register_buffer("mask", mask.detach().clone())
         self.layout = guide_layout(data.head, mask, cfg.mask_threshold, codec.n_points, cfg.render.n_points, dev)
         n = int(self.layout.texel_index.numel())
@@ -72,7 +72,7 @@ class Stage2Model(nn.Module):
         else:
             start = (step * k) % m
             idx = sorted((start + i) % m for i in range(k))
-        return torch.as_tensor(idx, dtype=torch.long, device=self.z.device)
+        return torch.as_tensor(idx, dtype=torch.long, device=self.zmap.z0.device)
 
     def ramp(self, step: int) -> float:
         """Deformation scale at ``step``: 0 during the canonical steps, then linear to 1 over the ramp."""
@@ -83,7 +83,7 @@ class Stage2Model(nn.Module):
     # -- model API ------------------------------------------------------------------------------
     def get_param_groups(self) -> list[dict]:
         """Z, and the deformation MLP / frame codes (method.md learning rates)."""
-        groups = [{"params": [self.z], "lr": self.cfg.lr_z, "name": "z"}]
+        groups = [{"params": [self.zmap.delta], "lr": self.cfg.lr_z, "name": "z"}]
         if self.deform is not None:
             groups += self.deform.param_groups(self.cfg.lr_mlp, self.cfg.lr_codes)
         return groups
@@ -91,6 +91,11 @@ class Stage2Model(nn.Module):
     def make_optimizers(self) -> list[torch.optim.Optimizer]:
         """One Adam over all groups."""
         return [torch.optim.Adam(self.get_param_groups())]
+
+    @property
+    def z(self) -> Tensor:
+        """(K,R,R) current hair map."""
+        return self.zmap()
 
     def canonical(self) -> Tensor:
         """(N,P,3) canonical guides (codec points) of the current Z."""
@@ -142,14 +147,14 @@ class Stage2Model(nn.Module):
     def observed(self) -> Tensor:
         """(R,R) bool texels whose guide was seen (visible fraction >= observed_fraction) in some keyframe."""
         res = self.layout.res
-        obs = torch.zeros(res * res, dtype=torch.bool, device=self.z.device)
+        obs = torch.zeros(res * res, dtype=torch.bool, device=self.zmap.z0.device)
         obs[self.layout.texel_index] = self.seen.amax(0) >= self.cfg.observed_fraction
         return obs.reshape(res, res)
 
     @torch.no_grad()
     def render_all(self, step: int) -> None:
         """Render every keyframe at the deformation scale of ``step`` (sets ``last_*``)."""
-        frames = torch.arange(self.data.n_frames, device=self.z.device)
+        frames = torch.arange(self.data.n_frames, device=self.zmap.z0.device)
         canon = self.canonical()
         moved, _ = self.deformed(canon[:, self.layout.render_index], frames, self.ramp(step))
         out = render_frames(moved, self.data, frames, self.cfg.render)

@@ -8,7 +8,7 @@
 - :mod:`.model`: the learned prior :class:`~.model.PriorNet` (+ ``PriorConfig``, ``load_prior``);
   :mod:`.views`: ``prior_input`` (the canonical head-centred crop) and the training-view renderer;
   :mod:`.dataset`, :mod:`.losses`, :mod:`.train` (``train_prior``: the cached training stage);
-  :mod:`.evaluate_prior`: prior vs mean hairstyle on unseen views.
+  (prior vs mean hairstyle on unseen views: :mod:`vid2haircut.evaluate.prior_eval`)
 """
 
 from vid2haircut.prior.codec import StrandCodec, component_mask

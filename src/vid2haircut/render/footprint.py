@@ -18,6 +18,8 @@ cropped away after compositing.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import torch
 from torch import Tensor
 
@@ -49,34 +51,45 @@ def _morton_key(means: Tensor, frame: Tensor, width: int, height: int, cell: int
     return frame * (1 << 20) + key
 
 
+class Windows(NamedTuple):
+    """Per-Gaussian pixel windows (no gradients), each [G]; see the module docstring.
+
+    In column u (an integer, u = x where ``horizontal`` else y) the window holds the ``height``
+    pixels v = vs(u) .. vs(u) + height - 1 along the other axis, vs(u) = ceil(slope * u + v0)
+    evaluated in float32 exactly in this order; the columns are u_lo .. u_lo + ncols - 1.
+    Gaussians with ncols = 0 are not drawn. Used by both compositing backends, so that they
+    visit the same pixels.
+
+    Attributes:
+        horizontal: bool, u = x. u_lo: float32 first column (integer valued, >= 0).
+        slope, v0: float32 window start line. ntu, ntv: int64 tiles along u (ncols = ntu * cols)
+        and along v (height = ntv * rows). rows, cols: tile shape.
+    """
+
+    horizontal: Tensor
+    u_lo: Tensor
+    slope: Tensor
+    v0: Tensor
+    ntu: Tensor
+    ntv: Tensor
+    rows: int
+    cols: int
+
+
 @torch.no_grad()
-def build_footprint(
+def gaussian_windows(
     means: Tensor,  # [G, 2]
     covs: Tensor,  # [G, 3]
     valid: Tensor,  # [G]
-    frame: Tensor,  # [G] int64
     height: int,
     width: int,
     power_min: float,
     cols: int = 4,
     max_rows: int = 8,
-) -> Footprint:
-    """Tile layout of the pixels each Gaussian can touch.
-
-    Args:
-        means: [G, 2] pixel centres (x, y). covs: [G, 3] covariances (xx, xy, yy), px^2.
-        valid: [G] bool; invalid Gaussians get no tile.
-        frame: [G] frame index of each Gaussian (selects the image in the padded buffer).
-        height, width: image size.
-        power_min: log(alpha_min / opacity) < 0; the ellipse drawn is -m/2 >= power_min.
-        cols: tile width in columns; max_rows: largest tile height tried.
-
-    Returns:
-        :class:`Footprint`; pixel indices address a flat buffer of B * (height + 2 pad) * (width + 2 pad).
-    """
+) -> Windows:
+    """Window of the pixels each Gaussian can touch (arguments as in :func:`build_footprint`)."""
     if power_min >= 0:
         raise ValueError(f"power_min must be negative (alpha_min < opacity), got {power_min}")
-    dev = means.device
     means = means.detach().to(torch.float32)
     covs = covs.detach().to(torch.float32)
     c2 = -2.0 * power_min
@@ -105,11 +118,44 @@ def build_footprint(
     need_i = torch.where(ntu > 0, need, torch.ones_like(need)).to(torch.int64)
     rows = _choose_rows(ntu[ntu > 0], need_i[ntu > 0], max_rows)
     ntv = (need_i + rows - 1) // rows
+    # first window row of column u: ceil(v_c(u) - half), v_c(u) = mv + slope (u - mu)
+    v0 = mv - slope * mu - half
+    return Windows(hz, u_lo, slope, v0, ntu, ntv, rows, cols)
+
+
+@torch.no_grad()
+def build_footprint(
+    means: Tensor,  # [G, 2]
+    covs: Tensor,  # [G, 3]
+    valid: Tensor,  # [G]
+    frame: Tensor,  # [G] int64
+    height: int,
+    width: int,
+    power_min: float,
+    cols: int = 4,
+    max_rows: int = 8,
+) -> Footprint:
+    """Tile layout of the pixels each Gaussian can touch.
+
+    Args:
+        means: [G, 2] pixel centres (x, y). covs: [G, 3] covariances (xx, xy, yy), px^2.
+        valid: [G] bool; invalid Gaussians get no tile.
+        frame: [G] frame index of each Gaussian (selects the image in the padded buffer).
+        height, width: image size.
+        power_min: log(alpha_min / opacity) < 0; the ellipse drawn is -m/2 >= power_min.
+        cols: tile width in columns; max_rows: largest tile height tried.
+
+    Returns:
+        :class:`Footprint`; pixel indices address a flat buffer of B * (height + 2 pad) * (width + 2 pad).
+    """
+    dev = means.device
+    win = gaussian_windows(means, covs, valid, height, width, power_min, cols, max_rows)
+    hz, rows, ntu, ntv = win.horizontal, win.rows, win.ntu, win.ntv
     ntile = ntu * ntv
 
     # Visit the Gaussians in a spatially coherent order (Morton order of 16-pixel cells) so that
     # consecutive tiles touch nearby pixels: the per-pixel gathers and scatters then hit the cache.
-    order = torch.argsort(_morton_key(means, frame, width, height))
+    order = torch.argsort(_morton_key(means.detach().to(torch.float32), frame, width, height))
     ntile_o = ntile[order]
     tile_gauss = torch.repeat_interleave(order, ntile_o)
     start = torch.cumsum(ntile_o, 0) - ntile_o
@@ -126,16 +172,15 @@ def build_footprint(
     ntv_t = take(ntv)
     cu = local // ntv_t
     cv = local - cu * ntv_t
-    slope_t = take(slope)
+    slope_t = take(win.slope)
     pad = max(rows, cols) + 1
     col = (torch.arange(nt * cols, device=dev) % cols).to(torch.float32)
-    u = ex(take(u_lo) + (cu * cols).to(torch.float32)).add_(col)  # [nt * cols]
-    # first window row of each column: ceil(v_c(u) - half), v_c(u) = mv + slope (u - mu)
-    v0 = take(mv) - slope_t * take(mu) - take(half)
+    u = ex(take(win.u_lo) + (cu * cols).to(torch.float32)).add_(col)  # [nt * cols]
+    v0 = take(win.v0)
     vstart = torch.ceil(ex(slope_t).mul_(u).add_(ex(v0))).add_(ex((cv * rows).to(torch.float32)))
     # Windows that start more than ``pad`` off the image lie wholly off it; clamping them keeps
     # every index inside the padded buffer without per-pixel bounds checks.
-    size_v_t = take(size_v)
+    size_v_t = torch.where(take(hz), height, width).to(torch.float32)
     vstart = torch.minimum(vstart.clamp_min_(-float(pad)), ex(size_v_t + float(pad - rows)))
     hz_t = take(hz)
     stride_row = width + 2 * pad
