@@ -19,6 +19,8 @@ COMMANDS = [
     "fit_head",
     "targets",
     "train_prior",
+    "stage1",
+    "stage2",
     "evaluate",
     "export",
     "aggregate",
