@@ -27,6 +27,15 @@ __all__ = ["CorpusConfig", "Corpus", "build_corpus", "fit_codec", "generate_styl
            "load_corpus"]
 
 
+def resolve_families(families: Sequence[str] | None) -> tuple[str, ...]:
+    """``families`` as a tuple, or every generator family when None."""
+    if families is not None:
+        return tuple(families)
+    from vid2haircut.synth.hairstyles import FAMILIES
+
+    return tuple(FAMILIES)
+
+
 @dataclass(frozen=True)
 class CorpusConfig:
     """Which hairstyles make a corpus."""
@@ -53,11 +62,7 @@ class CorpusConfig:
 
     def families_or_all(self) -> tuple[str, ...]:
         """The configured families, or every generator family."""
-        if self.families is not None:
-            return tuple(self.families)
-        from vid2haircut.synth.hairstyles import FAMILIES
-
-        return tuple(FAMILIES)
+        return resolve_families(self.families)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able record (for the codec's meta / training records)."""

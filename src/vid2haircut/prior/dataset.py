@@ -26,7 +26,7 @@ import torch
 
 from vid2haircut.io.atomic import write_npz
 from vid2haircut.prior.codec import StrandCodec
-from vid2haircut.prior.corpus import Corpus, build_corpus, load_corpus, save_corpus
+from vid2haircut.prior.corpus import Corpus, build_corpus, load_corpus, resolve_families, save_corpus
 from vid2haircut.prior.hairmap import encode_strands
 from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, prior_input, random_pose, render_view
 
@@ -56,11 +56,7 @@ class DatasetConfig:
 
     def families_or_all(self) -> tuple[str, ...]:
         """The configured families or every generator family."""
-        if self.families is not None:
-            return tuple(self.families)
-        from vid2haircut.synth.hairstyles import FAMILIES
-
-        return tuple(FAMILIES)
+        return resolve_families(self.families)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-able record (families resolved)."""
