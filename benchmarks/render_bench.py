@@ -8,6 +8,7 @@ pixel indices, so the memory access pattern is the same).
 
 Usage:
     python benchmarks/render_bench.py [--quick] [--breakdown] [--device cpu|cuda] [--threads N] [--frames B]
+                                      [--backend auto|numba|torch]
 
 The scene is a synthetic long-hair style on a 0.1 m scalp sphere seen from 0.6 m with a head
 occluder (the sphere's depth), hair filling most of the frame, as in the fitting stages.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import time
 
 import numpy as np
@@ -25,8 +27,9 @@ import torch
 from vid2haircut.camera import intrinsics_from_fov, look_at
 from vid2haircut.render import render_strands
 from vid2haircut.render.api import DEFAULT_ALPHA_MIN
-from vid2haircut.render.footprint import build_footprint
+from vid2haircut.render.footprint import build_footprint, gaussian_windows
 from vid2haircut.render.gaussians import segment_gaussians
+from vid2haircut.render.numba_backend import TILE, resolve_backend
 
 
 def hair_scene(n_strands: int, n_points: int = 32, seed: int = 0) -> np.ndarray:
@@ -85,16 +88,16 @@ def best_ms(fn, device: str, repeat: int) -> float:
     return best * 1e3
 
 
-def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1) -> dict:
+def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto") -> dict:
     pts, K, E, hd = setup(n_strands, size, frames, device)
     pts.requires_grad_(True)
 
     def fwd():
         with torch.no_grad():
-            render_strands(pts, K, E, size, size, head_depth=hd)
+            render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
 
     def fwd_bwd():
-        out = render_strands(pts, K, E, size, size, head_depth=hd)
+        out = render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
         loss = out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()
         loss.backward()
         pts.grad = None
@@ -115,7 +118,17 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
                 fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
 
 
-def breakdown(n_strands: int, size: int, device: str, repeat: int) -> None:
+def windows_and_tiles(means, covs, valid, frame, height, width, power_min):
+    """The numba backend's setup: pixel windows, then instances per screen tile."""
+    from vid2haircut.render.numba_tiles import bin_windows
+
+    win = gaussian_windows(means, covs, valid, height, width, power_min)
+    wint = torch.stack([win.horizontal.long(), win.u_lo.long(), win.ntu * win.cols, win.ntv * win.rows], 1)
+    wflt = torch.stack([win.slope, win.v0], 1)
+    return bin_windows(wint.numpy(), wflt.numpy(), frame.numpy(), 1, width, height, TILE)
+
+
+def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str = "auto") -> None:
     """Print where the time of one forward+backward goes (ms per stage)."""
     pts, K, E, hd = setup(n_strands, size, 1, device)
     G = pts.shape[1] * (pts.shape[2] - 1)
@@ -123,19 +136,23 @@ def breakdown(n_strands: int, size: int, device: str, repeat: int) -> None:
     t_g = best_ms(lambda: segment_gaussians(pts, K, E), device, repeat)
     g = segment_gaussians(pts, K, E)
     args = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame, size, size, math.log(DEFAULT_ALPHA_MIN))
-    t_fp = best_ms(lambda: build_footprint(*args), device, repeat)
+    if backend == "numba":  # pixel windows + screen-tile binning
+        t_fp = best_ms(lambda: windows_and_tiles(*args), device, repeat)
+    else:
+        t_fp = best_ms(lambda: build_footprint(*args), device, repeat)
     pts.requires_grad_(True)
 
     def fb(shading):
-        out = render_strands(pts, K, E, size, size, head_depth=hd, shading=shading)
+        out = render_strands(pts, K, E, size, size, head_depth=hd, shading=shading, backend=backend)
         (out.silhouette.sum() + out.depth.sum() + out.direction.sum()).backward()
         pts.grad = None
 
     with torch.no_grad():
-        t_f = best_ms(lambda: render_strands(pts, K, E, size, size, head_depth=hd), device, repeat)
+        t_f = best_ms(lambda: render_strands(pts, K, E, size, size, head_depth=hd, backend=backend), device, repeat)
     t_fb = best_ms(lambda: fb(True), device, repeat)
     t_sil = best_ms(lambda: fb(False), device, repeat)
-    print(f"\nbreakdown {n_strands} strands at {size}x{size} (ms): gaussians {t_g:.1f}, footprint {t_fp:.1f}, "
+    print(f"\nbreakdown {n_strands} strands at {size}x{size} (ms): gaussians {t_g:.1f}, "
+          f"{'windows+tiles' if backend == 'numba' else 'footprint'} {t_fp:.1f}, "
           f"forward {t_f:.1f}, forward+backward {t_fb:.1f}, silhouette-only forward+backward {t_sil:.1f}")
 
 
@@ -145,22 +162,27 @@ def main(argv=None) -> int:
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (CPU)")
     ap.add_argument("--frames", type=int, default=1, help="frames per call (times are per frame)")
+    ap.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
+                    help="compositing kernels (auto: numba on CPU when installed, else torch)")
+    ap.add_argument("--repeat", type=int, default=3, help="timed runs per case (the best is printed)")
     ap.add_argument("--breakdown", action="store_true", help="also print the time per stage (4k strands, 256x256)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
     cases = [(4000, 256)] if args.quick else [(n, s) for s in (256, 512) for n in (2000, 4000, 10000)]
-    repeat = 3
+    repeat = args.repeat
     dev_name = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"CPU, {torch.get_num_threads()} threads"
-    print(f"device: {dev_name}; torch {torch.__version__}; frames per call: {args.frames}\n")
+    backend = resolve_backend(args.backend, torch.zeros(1, device=args.device))
+    print(f"device: {dev_name}; torch {torch.__version__}; backend: {backend}; frames per call: {args.frames}; "
+          f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")
     print("|---|---|---|---|---|---|---|---|")
     for n, s in cases:
-        r = bench_case(n, s, args.device, repeat, args.frames)
+        r = bench_case(n, s, args.device, repeat, args.frames, backend)
         print(f"| {n} | {s}x{s} | {r['segments']} | {r['T'] / 1e6:.2f} M | {r['fwd']:.1f} | {r['fwd_bwd']:.1f} | "
               f"{r['scatter']:.1f} | {r['fwd_bwd'] / r['scatter']:.1f}x |", flush=True)
     if args.breakdown:
-        breakdown(4000, 256, args.device, repeat)
+        breakdown(4000, 256, args.device, repeat, backend)
     return 0
 
 

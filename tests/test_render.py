@@ -12,11 +12,19 @@ import torch
 
 from vid2haircut.camera import intrinsics_from_fov, look_at
 from vid2haircut.render import mesh_depth, render_strands, segment_gaussians
+from vid2haircut.render.numba_backend import numba_available, resolve_backend
 
 sys.path.insert(0, str(Path(__file__).parent))
 from render_reference import reference_render  # noqa: E402
 
 DT = torch.float64
+BACKENDS = ["torch", pytest.param("numba", marks=pytest.mark.skipif(not numba_available(), reason="needs numba"))]
+
+
+@pytest.fixture(params=BACKENDS)
+def backend(request):
+    """Every rendering test runs once per compositing backend."""
+    return request.param
 
 
 def simple_camera(size: int = 33, f: float = 400.0, batch: int = 1):
@@ -55,12 +63,12 @@ def quad_depth(z: float, size: int, K, E):
 # ---------------------------------------------------------------- physics
 
 
-def test_empty_scene_renders_empty():
+def test_empty_scene_renders_empty(backend):
     K, E = simple_camera()
     for pts in (torch.zeros(1, 0, 4, 3, dtype=DT),  # no strands
                 line([-0.01, 0, -0.5], [0.01, 0, -0.5])[None, None],  # behind the camera
                 line([5.0, 5.0, 0.5], [5.1, 5.0, 0.5])[None, None]):  # off-screen
-        out = render_strands(pts, K, E, 32, 32)
+        out = render_strands(pts, K, E, 32, 32, backend=backend)
         assert out.silhouette.shape == (1, 32, 32)
         assert float(out.silhouette.abs().max()) == 0.0
         assert float(out.depth.abs().max()) == 0.0
@@ -69,10 +77,10 @@ def test_empty_scene_renders_empty():
         assert out.visibility.shape == (1, pts.shape[1], 3 if pts.shape[2] == 4 else 5)
 
 
-def test_horizontal_strand_is_thin_line_of_direction_zero():
+def test_horizontal_strand_is_thin_line_of_direction_zero(backend):
     K, E = simple_camera(33)
     pts = line([-0.02, 0.0, 0.5], [0.02, 0.0, 0.5], 9)[None, None]  # along x, through the optical axis
-    out = render_strands(pts, K, E, 33, 33)
+    out = render_strands(pts, K, E, 33, 33, backend=backend)
     sil = out.silhouette[0]
     c = 16  # the optical axis row
     # 40 mm at 0.5 m -> 32 px long; beaded between Gaussian centres (std = half a segment)
@@ -85,33 +93,34 @@ def test_horizontal_strand_is_thin_line_of_direction_zero():
     assert torch.allclose(out.depth[0][m], torch.full((), 0.5, dtype=DT), atol=1e-9)
     assert out.visibility.all()
     # a vertical strand: angle pi/2, doubled-angle vector (-1, 0)
-    out = render_strands(line([0.0, -0.02, 0.5], [0.0, 0.02, 0.5], 9)[None, None], K, E, 33, 33)
+    out = render_strands(line([0.0, -0.02, 0.5], [0.0, 0.02, 0.5], 9)[None, None], K, E, 33, 33, backend=backend)
     m = out.mask[0]
     assert torch.allclose(out.angle[0][m], torch.full((), math.pi / 2, dtype=DT), atol=1e-6)
     assert torch.allclose(out.direction[0][m], torch.tensor([-1.0, 0.0], dtype=DT), atol=1e-6)
 
 
-def test_strand_behind_head_is_hidden_and_invisible():
+def test_strand_behind_head_is_hidden_and_invisible(backend):
     K, E = simple_camera(33)
     head = quad_depth(0.45, 33, K, E)
     assert torch.allclose(head[0], torch.full((33, 33), 0.45, dtype=DT))
     strand = line([-0.02, 0.0, 0.5], [0.02, 0.0, 0.5], 9)[None, None]
-    visible = render_strands(strand, K, E, 33, 33)
-    hidden = render_strands(strand, K, E, 33, 33, head_depth=head)
+    visible = render_strands(strand, K, E, 33, 33, backend=backend)
+    hidden = render_strands(strand, K, E, 33, 33, head_depth=head, backend=backend)
     assert visible.visibility.all() and float(visible.silhouette.max()) > 0.9
     assert float(hidden.silhouette.max()) == 0.0 and not hidden.visibility.any()
-    front = render_strands(strand - torch.tensor([0, 0, 0.1], dtype=DT), K, E, 33, 33, head_depth=head)
+    front = render_strands(strand - torch.tensor([0, 0, 0.1], dtype=DT), K, E, 33, 33, head_depth=head,
+                           backend=backend)
     assert front.visibility.all() and float(front.silhouette.max()) > 0.9
 
 
-def test_strand_in_front_hides_the_other_in_depth():
+def test_strand_in_front_hides_the_other_in_depth(backend):
     K, E = simple_camera(33)
     horiz = line([-0.02, 0.0, 0.40], [0.02, 0.0, 0.40], 8)  # 8 points: a segment midpoint on the axis
     vert = line([0.0, -0.02, 0.42], [0.0, 0.02, 0.42], 8)
     for z_front, z_back, front, back, front_dir in ((0.40, 0.42, horiz, vert, (1.0, 0.0)),
                                                     (0.42, 0.40, horiz + torch.tensor([0, 0, 0.02], dtype=DT),
                                                      vert - torch.tensor([0, 0, 0.02], dtype=DT), (-1.0, 0.0))):
-        out = render_strands(torch.stack([front, back])[None], K, E, 33, 33)
+        out = render_strands(torch.stack([front, back])[None], K, E, 33, 33, backend=backend)
         d = out.depth[0, 16, 16]  # the crossing pixel: front alpha 0.99, 1 % of the back shows
         assert abs(float(d) - min(z_front, z_back)) < 3e-4, d
         assert torch.allclose(out.direction[0, 16, 16], torch.tensor(front_dir, dtype=DT), atol=0.05)
@@ -119,7 +128,7 @@ def test_strand_in_front_hides_the_other_in_depth():
     # a dense sheet of strands in front hides a strand completely
     sheet = torch.stack([line([-0.03, y, 0.40], [0.03, y, 0.40], 9) for y in np.linspace(-0.01, 0.01, 41)])
     hidden = line([-0.005, -0.004, 0.43], [0.005, 0.004, 0.43], 9)[None]
-    out = render_strands(torch.cat([sheet, hidden])[None], K, E, 33, 33)
+    out = render_strands(torch.cat([sheet, hidden])[None], K, E, 33, 33, backend=backend)
     assert out.visibility[0, :-1].any() and not out.visibility[0, -1].any()
     assert float((out.depth[0][out.mask[0]] - 0.40).abs().max()) < 5e-4
 
@@ -128,7 +137,7 @@ def test_strand_in_front_hides_the_other_in_depth():
 
 
 @pytest.mark.parametrize("seed,with_head", [(0, False), (1, False), (2, True)])
-def test_matches_reference(seed, with_head):
+def test_matches_reference(seed, with_head, backend):
     size = 20
     pts = random_scene(seed, spread=0.03)  # some strands leave the image
     K, E = orbit_camera(size)
@@ -138,7 +147,7 @@ def test_matches_reference(seed, with_head):
         head = head_t.numpy()
     ref = reference_render(pts, K, E, size, size, head_depth=head)
     out = render_strands(torch.tensor(pts), torch.tensor(K), torch.tensor(E), size, size,
-                         head_depth=None if head is None else torch.tensor(head))
+                         head_depth=None if head is None else torch.tensor(head), backend=backend)
     sil = out.silhouette[0].numpy()
     # silhouette: exact (order independent)
     assert np.abs(sil - ref.silhouette[0]).max() < 1e-9
@@ -160,7 +169,7 @@ def test_matches_reference(seed, with_head):
 
 
 @pytest.mark.parametrize("channel", ["silhouette", "depth", "direction", "depth_normalized"])
-def test_gradients_match_finite_differences(channel):
+def test_gradients_match_finite_differences(channel, backend):
     size = 16
     K, E = orbit_camera(size)
     pts = torch.tensor(random_scene(3, n=3, p=4, spread=0.015), requires_grad=True)
@@ -169,7 +178,7 @@ def test_gradients_match_finite_differences(channel):
     K, E = torch.tensor(K), torch.tensor(E)
 
     def f(p):
-        out = getattr(render_strands(p, K, E, size, size), channel)
+        out = getattr(render_strands(p, K, E, size, size, backend=backend), channel)
         return (out * (R if out.ndim == 4 else R[..., 0])).sum()
 
     g = torch.autograd.grad(f(pts), pts)[0]
@@ -177,13 +186,13 @@ def test_gradients_match_finite_differences(channel):
     assert torch.autograd.gradcheck(f, (pts,), eps=1e-7, atol=1e-5 * float(g.abs().max()), rtol=1e-3)
 
 
-def test_silhouette_only_mode_matches():
+def test_silhouette_only_mode_matches(backend):
     size = 20
     K, E = (torch.tensor(a) for a in orbit_camera(size))
     pts = torch.tensor(random_scene(4), requires_grad=True)
-    full = render_strands(pts, K, E, size, size)
+    full = render_strands(pts, K, E, size, size, backend=backend)
     g_full = torch.autograd.grad(full.silhouette.square().sum(), pts)[0]
-    sil = render_strands(pts, K, E, size, size, shading=False)
+    sil = render_strands(pts, K, E, size, size, shading=False, backend=backend)
     g_sil = torch.autograd.grad(sil.silhouette.square().sum(), pts)[0]
     assert torch.allclose(full.silhouette, sil.silhouette, atol=1e-12)
     assert torch.allclose(g_full, g_sil, atol=1e-9)
@@ -193,31 +202,32 @@ def test_silhouette_only_mode_matches():
 # ---------------------------------------------------------------- batching and shapes
 
 
-def test_batch_of_frames_equals_single_frames_and_shapes_vary():
+def test_batch_of_frames_equals_single_frames_and_shapes_vary(backend):
     size = 24
     K0, E0 = orbit_camera(size)
     E1 = look_at(np.array([0.1, 0.02, 0.22]), np.zeros(3))[None]
     pts = np.concatenate([random_scene(5), random_scene(6)])  # hair moves per frame
     K = torch.tensor(np.concatenate([K0, K0 * [[1.1], [1.1], [1]]]))
     E = torch.tensor(np.concatenate([E0, E1]))
-    both = render_strands(torch.tensor(pts), K, E, size, size)
+    both = render_strands(torch.tensor(pts), K, E, size, size, backend=backend)
     for b in range(2):
-        one = render_strands(torch.tensor(pts[b:b + 1]), K[b:b + 1], E[b:b + 1], size, size)
+        one = render_strands(torch.tensor(pts[b:b + 1]), K[b:b + 1], E[b:b + 1], size, size, backend=backend)
         for a, c in ((both.silhouette[b], one.silhouette[0]), (both.depth[b], one.depth[0]),
                      (both.direction[b], one.direction[0]), (both.depth_normalized[b], one.depth_normalized[0])):
             assert torch.allclose(a, c, atol=1e-9)
         assert torch.equal(both.visibility[b], one.visibility[0])
     # P = 2 (one segment per strand) and a different N on the next call
-    two = render_strands(torch.tensor(pts[:1, :3, :2]), K[:1], E[:1], size, size)
+    two = render_strands(torch.tensor(pts[:1, :3, :2]), K[:1], E[:1], size, size, backend=backend)
     assert two.visibility.shape == (1, 3, 1) and float(two.silhouette.max()) > 0.5
-    float_out = render_strands(torch.tensor(pts[:1, :2], dtype=torch.float32), K[:1].float(), E[:1].float(), 32, 20)
+    float_out = render_strands(torch.tensor(pts[:1, :2], dtype=torch.float32), K[:1].float(), E[:1].float(), 32, 20,
+                               backend=backend)
     assert float_out.silhouette.shape == (1, 20, 32) and float_out.silhouette.dtype == torch.float32
 
 
-def test_depth_normalized_in_unit_range_inside_mask():
+def test_depth_normalized_in_unit_range_inside_mask(backend):
     size = 24
     K, E = (torch.tensor(a) for a in orbit_camera(size))
-    out = render_strands(torch.tensor(random_scene(7)), K, E, size, size)
+    out = render_strands(torch.tensor(random_scene(7)), K, E, size, size, backend=backend)
     dn, m = out.depth_normalized[0], out.mask[0]
     assert float(dn[m].min()) == 0.0 and abs(float(dn[m].max()) - 1.0) < 1e-9
     assert float(dn[~m].abs().max()) == 0.0
@@ -313,3 +323,87 @@ def test_projection_jacobian_matches_finite_differences():
         d[i] = 1e-6
         num = (project_camera_points(cam + d, K)[0] - project_camera_points(cam - d, K)[0]) / 2e-6
         assert torch.allclose(J[..., i], num, atol=1e-5)
+
+
+# ---------------------------------------------------------------- backends
+
+
+def _backend_scene(dtype):
+    """Two frames of 40 wavy strands x 8 points crossing at mm depth spacing, 48 x 40 px, a head plane."""
+    size_w, size_h = 48, 40
+    K0, E0 = orbit_camera(size_w)
+    K0[:, 1, 2] -= 4.0  # principal point of a 48 x 40 image
+    E1 = look_at(np.array([0.08, 0.03, 0.23]), np.zeros(3))[None]
+    pts = np.concatenate([random_scene(20, n=40, p=8, spread=0.025), random_scene(21, n=40, p=8, spread=0.025)])
+    K = torch.tensor(np.concatenate([K0, K0]), dtype=dtype)
+    E = torch.tensor(np.concatenate([E0, E1]), dtype=dtype)
+    head = quad_depth(0.252, size_w, torch.tensor(K0), torch.eye(4, dtype=DT)[None])[:, :size_h].expand(2, -1, -1)
+    return torch.tensor(pts, dtype=dtype, requires_grad=True), K, E, size_w, size_h, head.to(dtype).contiguous()
+
+
+def _render_and_grad(backend, dtype, shading=True):
+    pts, K, E, w, h, head = _backend_scene(dtype)
+    gen = torch.Generator().manual_seed(1)
+    R = torch.randn(2, h, w, 2, generator=gen, dtype=dtype)
+    out = render_strands(pts, K, E, w, h, head_depth=head, backend=backend, shading=shading)
+    loss = (out.silhouette * R[..., 0]).sum() + (out.depth_normalized * R[..., 1]).sum() + (out.direction * R).sum()
+    return out, torch.autograd.grad(loss, pts)[0]
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-9), (torch.float32, 1e-5)])
+def test_backends_agree_on_random_scene(dtype, tol):
+    """The numba and torch kernels implement the same model: values and gradients agree to round-off."""
+    a, ga = _render_and_grad("torch", dtype)
+    b, gb = _render_and_grad("numba", dtype)
+    assert a.mask.sum() > 300 and a.visibility.any() and not a.visibility.all()  # a busy, partly hidden scene
+    for name in ("silhouette", "depth", "depth_normalized", "direction"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.dtype == y.dtype == dtype and x.shape == y.shape
+        assert float((x - y).detach().abs().max()) < tol, name
+    assert torch.equal(a.visibility, b.visibility) and torch.equal(a.mask, b.mask)
+    assert float((ga - gb).abs().max()) < tol * float(ga.abs().max())
+    # silhouette only
+    (a, ga), (b, gb) = _render_and_grad("torch", dtype, False), _render_and_grad("numba", dtype, False)
+    assert float((a.silhouette - b.silhouette).detach().abs().max()) < tol
+    assert float((ga - gb).abs().max()) < tol * float(ga.abs().max())
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+def test_numba_backend_is_deterministic_for_any_thread_count():
+    threads = torch.get_num_threads()
+    try:
+        runs = []
+        for n in (1, 2, 2):
+            torch.set_num_threads(n)  # the numba kernels use as many threads as torch
+            runs.append(_render_and_grad("numba", torch.float32))
+    finally:
+        torch.set_num_threads(threads)
+    (a, ga), *rest = runs
+    for b, gb in rest:
+        for x, y in zip(a[:7], b[:7]):
+            assert torch.equal(x, y)
+        assert torch.equal(ga, gb)
+
+
+def test_backend_choice():
+    pts = torch.zeros(1, 1, 2, 3)
+    assert resolve_backend("torch", pts) == "torch"
+    assert resolve_backend("auto", pts) == ("numba" if numba_available() else "torch")
+    assert resolve_backend("auto", pts.half()) == "torch"
+    with pytest.raises(ValueError, match="backend must be one of"):
+        resolve_backend("fast", pts)
+    with pytest.raises(ValueError, match="numba"):
+        resolve_backend("numba", pts.half())
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+def test_numba_backend_from_two_python_threads():
+    """Concurrent renders (e.g. from a thread pool) wait for each other instead of crashing."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    ref = _render_and_grad("numba", torch.float64)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        results = list(pool.map(lambda _: _render_and_grad("numba", torch.float64), range(4)))
+    for out, grad in results:
+        assert torch.equal(out.silhouette, ref[0].silhouette) and torch.equal(grad, ref[1])

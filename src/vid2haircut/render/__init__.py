@@ -1,4 +1,7 @@
-"""Differentiable strand rasterizer: strands as strand-aligned Gaussians (torch only).
+"""Differentiable strand rasterizer: strands as strand-aligned Gaussians.
+
+Projection and footprints are torch; compositing (forward and backward) runs in fused numba kernels
+on the CPU (:mod:`.numba_backend`) and in torch on CUDA or when numba is missing (``backend=``).
 
 Public API:
     render_strands(points, K, world_2_cam, width, height, ...) -> StrandRender

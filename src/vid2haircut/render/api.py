@@ -1,19 +1,29 @@
 """Public functional API of the strand renderer: :func:`render_strands`.
 
 Pipeline: strand points -> one 2D Gaussian per segment (:mod:`.gaussians`, EWA projection) ->
-sheared tile footprints (:mod:`.footprint`) -> order-independent compositing into pixel sums
-(:mod:`.raster`, :mod:`.kernels`) -> image channels (here).
+pixel windows (:mod:`.footprint`) -> order-independent compositing into pixel sums -> image
+channels (here). Two compositing backends implement the same model (``backend`` argument):
+the torch kernels (:mod:`.raster`, :mod:`.kernels`; any device) and fused numba kernels
+(:mod:`.numba_backend`; CPU, the default there when numba is installed). They agree to float
+round-off (tests/test_render.py: 1e-15 in float64, ~1e-6 in float32, values and gradients).
 
 Accuracy against the exact per-pixel front-to-back reference (tests/render_reference.py) is
 documented in :mod:`vid2haircut.render.raster` and checked by tests/test_render.py.
 
 Performance (benchmarks/render_bench.py; 4k strands x 32 points = 124k segments at 256 x 256,
-7.6 M (Gaussian, pixel) contributions; measured on quiet pinned CPU cores of the device machine,
-torch 2.11): forward 280 ms, forward+backward 520-580 ms with 2 threads (900 ms with 1),
-silhouette-only forward+backward 295 ms; a plain scatter_add_ of the same 7.6 M values takes
-15 ms there, so fwd+bwd is ~40x that ceiling. The work is ~13 gather/scatter passes and ~55
-elementwise passes over the contributions (chunked to stay in cache), plus ~65 ms of footprint
-building. On an H100 (one chunk): fwd+bwd ~17-50 ms per frame, ~32 ms for 8 frames per call.
+7.6 M (Gaussian, pixel) window contributions, 3.1 M of them drawn).
+Torch kernels, measured on quiet pinned CPU cores of the device machine, torch 2.11: forward
+280 ms, forward+backward 520-580 ms with 2 threads (900 ms with 1), silhouette-only
+forward+backward 295 ms; a plain scatter_add_ of the same 7.6 M values takes 15 ms there, so
+fwd+bwd is ~40x that ceiling (~13 gather/scatter and ~55 elementwise passes over the
+contributions, plus ~65 ms of footprint building). On an H100 (one chunk): fwd+bwd ~17-50 ms
+per frame, ~32 ms for 8 frames per call.
+Numba kernels, measured on the 2-core development machine shared with other jobs (torch 2.13,
+OMP_WAIT_POLICY=passive): one thread (CPU time) forward 124 ms, forward+backward 185 ms (torch
+kernels there: 227 / 376 ms; at 512 x 512: 236 / 365 ms against 496 / 862 ms); two threads:
+forward 90 ms, forward+backward 128 ms at load average 1.6, ~200 ms while other jobs keep both
+cores busy (scatter_add_ ceiling 5 ms there). Of a forward+backward, ~140 ms CPU are the fused
+kernels and ~50 ms the torch projection of the Gaussians, the pixel windows and their backward.
 """
 
 from __future__ import annotations
@@ -27,6 +37,7 @@ from vid2haircut.render.allocator import tune_cpu_allocator
 from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, check_points, segment_gaussians
 from vid2haircut.render.kernels import KernelConsts
+from vid2haircut.render.numba_backend import composite_fused, resolve_backend
 from vid2haircut.render.raster import composite
 from vid2haircut.render.types import PixelSums, StrandRender
 
@@ -52,6 +63,7 @@ def render_strands(
     vis_weight: float = 0.3,
     near: float = 1e-2,
     shading: bool = True,
+    backend: str = "auto",
 ) -> StrandRender:
     """Render strands as strand-aligned Gaussians to silhouette, direction and depth maps.
 
@@ -78,6 +90,10 @@ def render_strands(
         near: segments closer than this (metres) are not drawn.
         shading: False renders the silhouette only (much faster); depth, direction and
             visibility are then zeros / False.
+        backend: compositing kernels: "torch" (any device), "numba" (fused CPU kernels) or
+            "auto" (default: numba for float32/float64 CPU points when numba imports, else torch;
+            see :mod:`vid2haircut.render.numba_backend`). Both give the same result up to float
+            round-off.
 
     Returns:
         :class:`StrandRender` (see its field docs for shapes and empty-pixel values).
@@ -98,6 +114,7 @@ def render_strands(
     if depth_bin <= 0 or bins < 1:
         raise ValueError(f"need depth_bin > 0 and bins >= 1, got depth_bin={depth_bin}, bins={bins}")
     check_points(points)
+    use_numba = resolve_backend(backend, points) == "numba"
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     if points.device.type == "cpu":
         tune_cpu_allocator()  # see vid2haircut.render.allocator
@@ -110,13 +127,17 @@ def render_strands(
     G = B * S
     frame = torch.arange(B, device=points.device).repeat_interleave(S)
     log_op = math.log(opacity)
-    fp = build_footprint(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame,
-                         height, width, math.log(alpha_min) - log_op)
     # CPU: cache-sized chunks; GPU: one chunk (each chunk costs kernel launches, not memory traffic)
     chunk = 262_144 if points.device.type == "cpu" else 1 << 62
     consts = KernelConsts(log_op, alpha_min, alpha_max, depth_bin, int(bins), vis_weight, shading, chunk)
-    sums, visible = composite(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G),
-                              g.dirs.reshape(G, 2), fp, B, height, width, consts, head_depth)
+    flat = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2))
+    power_min = math.log(alpha_min) - log_op
+    if use_numba:
+        sums, visible = composite_fused(*flat, g.valid.reshape(G), frame, B, height, width, consts, power_min,
+                                        head_depth)
+    else:
+        fp = build_footprint(flat[0], flat[1], g.valid.reshape(G), frame, height, width, power_min)
+        sums, visible = composite(*flat, fp, B, height, width, consts, head_depth)
     return _finish(sums, visible.reshape(B, N, P - 1), g)
 
 

@@ -1,0 +1,195 @@
+"""Fused CPU compositing backend (numba) behind :func:`vid2haircut.render.render_strands`.
+
+Choice: ``backend="auto"`` (the default) picks these kernels for CPU tensors of dtype float32 or
+float64 when numba imports, and the torch kernels (:mod:`.raster`, :mod:`.kernels`) otherwise
+(CUDA, other dtypes, numba missing); ``"torch"`` and ``"numba"`` force one. Both visit the same
+window pixels (:func:`.footprint.gaussian_windows`, computed by torch for both: torch's float32
+sqrt is not always correctly rounded, so numba could not reproduce the windows bit for bit) and
+implement the same compositing model, so they agree to float round-off (tests/test_render.py
+checks values and gradients). Why a second backend: the torch kernels need ~13 gather/scatter
+and ~55 elementwise passes over the (Gaussian, pixel) contributions; the fused kernels
+(:mod:`.numba_kernels`) composite one screen tile at a time in cache, ~2x less CPU time for
+forward+backward (numbers in :mod:`.api`).
+
+Compilation: on first use, once per machine, ~16 s for the first dtype and ~4 s for the other
+(measured, 2 cores), then cached on disk (``cache=True``: ``__pycache__`` next to the modules,
+or numba's user cache directory); loading the cache costs ~0.5 s per process.
+Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``; the results are
+bitwise identical for any thread count. Memory: the forward pass keeps 24 bytes per window
+element for the backward pass (~240 MB allocated for 4k strands at 256 x 256, about a third of
+it touched).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import threading
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from vid2haircut.render.footprint import gaussian_windows
+from vid2haircut.render.gaussians import conics
+from vid2haircut.render.kernels import KernelConsts
+from vid2haircut.render.types import PixelSums
+
+BACKENDS = ("auto", "numba", "torch")
+_LOCK = threading.Lock()  # numba's workqueue layer must not be entered from two threads at once
+TILE = 16
+"""Screen tile size (pixels) of the fused kernels."""
+
+
+@functools.lru_cache(maxsize=1)
+def numba_available() -> bool:
+    """True when numba imports (the fused kernels are then usable on CPU).
+
+    Unless the environment sets ``NUMBA_THREADING_LAYER``, numba's threading layer is set to
+    "workqueue" here (before any parallel kernel runs): its idle workers sleep, whereas with the
+    OpenMP layer numba's and torch's OpenMP workers spin-wait against each other after every
+    parallel region (measured: 70 ms instead of 4 ms per small render, and torch ops slowed 3x).
+    The workqueue layer does not support launching kernels from several Python threads at once,
+    so this module runs its kernels under a lock (concurrent renders wait for each other).
+    """
+    try:
+        import numba
+    except ImportError:
+        return False
+    if "NUMBA_THREADING_LAYER" not in os.environ:
+        numba.config.THREADING_LAYER = "workqueue"
+    return True
+
+
+def resolve_backend(backend: str, points: Tensor) -> str:
+    """``"numba"`` or ``"torch"`` for ``backend`` in ("auto", "numba", "torch") and these points.
+
+    Raises ValueError for an unknown name, or for "numba" with CUDA tensors, an unsupported dtype
+    or numba not installed.
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    ok = points.device.type == "cpu" and points.dtype in (torch.float32, torch.float64)
+    if backend == "auto":
+        return "numba" if ok and numba_available() else "torch"
+    if backend == "numba" and not (ok and numba_available()):
+        raise ValueError("backend='numba' needs numba installed and float32/float64 CPU points, got "
+                         f"{points.dtype} on {points.device} (numba installed: {numba_available()})")
+    return backend
+
+
+class _Plan:
+    """Everything the kernels need besides the differentiable Gaussian values (numpy arrays)."""
+
+    def __init__(self, wint, wflt, frame, head, consts: KernelConsts, batch: int, height: int, width: int):
+        import numba
+
+        from vid2haircut.render import numba_tiles, numba_walk
+
+        self.wint, self.wflt = wint, wflt
+        with _LOCK:
+            self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
+                wint, wflt, frame, batch, width, height, TILE)
+            bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
+        self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
+        self.capacity = int(bounds.sum())
+        self.has_head = head is not None
+        self.head = head if head is not None else np.zeros((1, 1, 1))
+        self.consts = np.array([consts.log_opacity, consts.alpha_min, consts.alpha_max], np.float64)
+        self.nbins = int(consts.bins) if consts.shading else 1
+        self.vis_weight = float(consts.vis_weight)
+        self.shape = (batch, height, width)
+        numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+        self.work_start, self.work_tiles = numba_tiles.assign_tiles(self.tile_start, numba.get_num_threads())
+
+
+def _gpar(means: Tensor, qxx: Tensor, qxy: Tensor, qyy: Tensor, z: Tensor, dirs: Tensor) -> np.ndarray:
+    """[G, 8] float64 table (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a)."""
+    cols = (means[:, 0], means[:, 1], qxx, qxy, qyy, z, dirs[:, 0], dirs[:, 1])
+    return torch.stack([c.detach().to(torch.float64) for c in cols], 1).contiguous().numpy()
+
+
+class _FusedComposite(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means, qxx, qxy, qyy, z, dirs, zs, plan):
+        from vid2haircut.render import numba_kernels as nk
+
+        gpar = _gpar(means, qxx, qxy, qyy, z, dirs)
+        zs_np = zs.detach().contiguous().numpy()
+        B, H, W = plan.shape
+        out = np.zeros((B, H, W, 4 if plan.nbins > 1 else 1), zs_np.dtype)
+        maxw = np.zeros(plan.sorted_g.shape[0])
+        cap = plan.capacity
+        elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
+        e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
+        visible = np.zeros(means.shape[0], np.bool_)
+        with _LOCK:
+            nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
+                                 plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
+                                 TILE, plan.offsets, elems, e_range, out, maxw)
+            if plan.nbins > 1:
+                nk.reduce_visibility(plan.gstart, plan.inst_pos, maxw, plan.vis_weight, visible)
+        ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, means.dtype
+        visible_t = torch.from_numpy(visible)
+        ctx.mark_non_differentiable(visible_t)
+        return torch.from_numpy(out), visible_t
+
+    @staticmethod
+    def backward(ctx, grad, _g_vis):
+        from vid2haircut.render import numba_kernels as nk
+
+        plan = ctx.plan
+        B, H, W = plan.shape
+        g = grad.detach().to(torch.float64).contiguous().numpy()
+        acc = np.zeros((plan.sorted_g.shape[0], nk.N_ACC))
+        grads = np.empty((ctx.gpar.shape[0], 8))
+        with _LOCK:
+            nk.composite_backward(ctx.gpar, plan.consts, plan.nbins, plan.tile_start, plan.sorted_g,
+                                  plan.work_start, plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, acc)
+            nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
+        gt = torch.from_numpy(grads).to(ctx.dtype)
+        shading = plan.nbins > 1
+        return (gt[:, 0:2], gt[:, 2], gt[:, 3], gt[:, 4], gt[:, 5] if shading else None,
+                gt[:, 6:8] if shading else None, None, None)
+
+
+def composite_fused(
+    means: Tensor,  # [G, 2]
+    covs: Tensor,  # [G, 3]
+    depths: Tensor,  # [G]
+    dirs: Tensor,  # [G, 2]
+    valid: Tensor,  # [G] bool
+    frame: Tensor,  # [G] int64
+    batch: int,
+    height: int,
+    width: int,
+    consts: KernelConsts,
+    power_min: float,
+    head_depth: Tensor | None = None,  # [B, H, W]
+) -> tuple[PixelSums, Tensor]:
+    """Composite G Gaussians (flattened over frames) into per-pixel sums with the fused CPU kernels.
+
+    Same contract as :func:`vid2haircut.render.raster.composite` (which takes a footprint instead
+    of ``valid``, ``frame`` and ``power_min`` = log(alpha_min / opacity)).
+
+    Returns:
+        (:class:`PixelSums` with [B, H, W] fields, visible [G] bool).
+    """
+    dt = means.dtype
+    win = gaussian_windows(means, covs, valid, height, width, power_min)  # the torch backend's windows
+    wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
+                        win.ntv * win.rows], 1).contiguous().numpy()
+    wflt = torch.stack([win.slope, win.v0], 1).contiguous().numpy()
+    head = None
+    if head_depth is not None:  # compared in the input dtype, as the torch kernels do
+        head = head_depth.detach().to(dt).to(torch.float64).contiguous().numpy()
+    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), head, consts, batch, height, width)
+    qxx, qxy, qyy = conics(covs)
+    zs = depths.detach() * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
+    out, visible = _FusedComposite.apply(means, qxx, qxy, qyy, depths, dirs, zs, plan)
+    log_t = out[..., 0]
+    weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
+    if not consts.shading:
+        zeros = torch.zeros_like(log_t)
+        return PixelSums(log_t, weight, zeros, torch.stack([zeros, zeros], -1)), visible
+    return PixelSums(log_t, weight, out[..., 1], out[..., 2:4]), visible

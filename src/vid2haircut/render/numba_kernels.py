@@ -1,0 +1,210 @@
+"""Fused CPU compositing kernels (numba): the compositing model of :mod:`.kernels` in a few loops.
+
+Same contributions, same depth bins, same weights as the torch kernels (see
+:mod:`vid2haircut.render.raster` for the model): a contribution of Gaussian g at pixel p of its
+window has power = log opacity - (q_xx dx^2 + 2 q_xy dx dy + q_yy dy^2) / 2, alpha =
+min(exp(power), alpha_max) kept when > alpha_min, times the head factor clamp((head(p) - z) 1e12,
+0, 1); l = log(1 - alpha); bin = clamp(floor(zs - z_ref(p)), 0, bins - 1) with zs = z / depth_bin
+in the input dtype and z_ref(p) the smallest zs of the windows covering p; w = -M(p, bin) l.
+
+Work is split by screen tile (:mod:`.numba_tiles`): one thread composites a whole tile, with all
+per-pixel tables private to it, so there are no write races and no atomics, and every sum runs in
+a fixed order (instances of a tile by Gaussian index, elements in window order, per-instance
+results reduced per Gaussian in instance order): results do not depend on the number of threads.
+Per tile, forward (:func:`composite_forward`):
+
+ 1. one walk of the windows (:func:`.numba_walk.walk`): z_ref over every window pixel, and the
+    elements (ellipse rows not hidden by the head) with their power; then alpha and l in one
+    vectorised loop (:mod:`.numba_math`);
+ 2. bins and Lb(b, p) = sum of l per (bin, pixel);
+ 3. -M(b, p) = -exp(Lx) expm1(Lb) / Lb (:func:`vid2haircut.render.bins.weight_table`);
+ 4. w = -M l; per pixel sums of w z, w cos2a, w sin2a; largest w per instance (visibility).
+
+The elements (pixel, bin, alpha, l) stay in flat arrays at per-tile offsets (sized by the tile's
+window element count, an upper bound; about a third is used), and the backward pass
+(:func:`composite_backward`) starts from them: Lb and -M again (same order, same values), then
+A. q = dL/dw, per instance dL/dz, dL/dc, dL/ds and G(b, p) = sum of q l; B. dL/dLb
+(:func:`vid2haircut.render.bins.gradient_table`); C. per element dL/dpower and per instance its
+moments sum gp (dx, dy, dx^2, dx dy, dy^2), turned into dL/d(mean, conic) by
+:func:`reduce_gradients`. Internal sums are float64; outputs have the input dtype.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from vid2haircut.render.numba_walk import (BIG, C_AMAX, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT, bin_sums,
+                                           gradient_table, tile_box, walk, weight_table)
+
+N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
+_PAR = dict(cache=True, parallel=True, error_model="numpy")
+
+
+@njit(**JIT)
+def _pixel_xy(x0, x1, y0, y1):
+    """Pixel coordinates (x, y) [npx] of the tile's pixels, row-major."""
+    tw = x1 - x0 + 1
+    npx = tw * (y1 - y0 + 1)
+    px, py = np.empty(npx), np.empty(npx)
+    for p in range(npx):
+        px[p] = x0 + p % tw
+        py[p] = y0 + p // tw
+    return px, py
+
+
+@njit(**_PAR)
+def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g,
+                      work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, maxw):
+    """Forward compositing of all tiles.
+
+    Args:
+        gpar: [G, 8] float64 (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a). zs: [G] z / depth_bin
+            (input dtype). wint, wflt: window tables (:mod:`.numba_tiles`). head: [B, H, W] float64
+            head depth (used when ``has_head``). consts: [3] (log opacity, alpha_min, alpha_max).
+        nbins: depth bins (1: silhouette only). tile_start, sorted_g: instances per tile;
+        work_start, work_tiles: tiles per worker (:func:`.numba_tiles.assign_tiles`).
+        offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`).
+        elems: (pixel int32, bin int32, alpha float64, l float64) element arrays, filled.
+        e_range: [n_instances, 2] filled with the element range of each instance.
+        out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (C = 1:
+        sum l only). maxw: [n_instances] filled with each instance's largest weight.
+    """
+    e_p, e_bin, e_al, e_la = elems
+    for wk in prange(work_start.shape[0] - 1):
+        for j in range(work_start[wk], work_start[wk + 1]):
+            t = work_tiles[j]
+            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            tw = x1 - x0 + 1
+            npx = tw * (y1 - y0 + 1)
+            i0, i1 = tile_start[t], tile_start[t + 1]
+            zref = np.full(npx, np.inf, zs.dtype)
+            hloc = np.empty(npx if has_head else 0)
+            for p in range(hloc.shape[0]):
+                hloc[p] = head[b, y0 + p // tw, x0 + p % tw]
+            walk(i0, i1, sorted_g, wint, wflt, gpar, zs, hloc, has_head, consts, x0, x1, y0, y1, zref, nbins > 1,
+                 e_p, e_al, e_la, offsets[t], e_range)
+            Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, True)
+            acc = np.zeros((4, npx))
+            for bb in range(nb):  # sum of l, in bin order
+                for p in range(npx):
+                    acc[0, p] += Lb[bb, p]
+            if nbins > 1:
+                negM, Etab = weight_table(Lb, nb)
+                for k in range(i0, i1):
+                    g = sorted_g[k]
+                    z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
+                    mw = 0.0
+                    for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
+                        p = np.uint64(e_p[e])
+                        w = negM[np.uint64(e_bin[e]), p] * e_la[e]
+                        acc[1, p] += w * z
+                        acc[2, p] += w * c
+                        acc[3, p] += w * s
+                        mw = max(mw, w)
+                    maxw[k] = mw
+            for p in range(npx):
+                y, x = y0 + p // tw, x0 + p % tw
+                for ch in range(out.shape[3]):
+                    out[b, y, x, ch] = acc[ch, p]
+
+
+@njit(**_PAR)
+def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, work_tiles, width, height, tile,
+                       elems, e_range, grad, acc):
+    """Backward compositing of all tiles from the elements kept by :func:`composite_forward`.
+
+    Args:
+        grad: [B, H, W, C] upstream gradient of ``out``; the other arguments as given to (and
+            filled by) :func:`composite_forward`.
+        acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``).
+    """
+    e_p, e_bin, e_al, e_la = elems
+    amax = consts[C_AMAX]
+    for wk in prange(work_start.shape[0] - 1):
+        for j in range(work_start[wk], work_start[wk + 1]):
+            t = work_tiles[j]
+            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            px, py = _pixel_xy(x0, x1, y0, y1)
+            npx = px.shape[0]
+            i0, i1 = tile_start[t], tile_start[t + 1]
+            Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, gpar[:0, 0], gpar[:0, 0], nbins, npx, False)
+            gl = np.zeros((4, npx))
+            for p in range(npx):
+                for ch in range(grad.shape[3]):
+                    gl[ch, p] = grad[b, int(py[p]), int(px[p]), ch]
+            if nbins > 1:
+                negM, Etab = weight_table(Lb, nb)
+                Gt = np.zeros((nbins, npx))
+                for k in range(i0, i1):  # A: d loss / d w, per instance and per bin
+                    g = sorted_g[k]
+                    z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
+                    sz = sc = ss = 0.0
+                    for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
+                        p, bn = np.uint64(e_p[e]), np.uint64(e_bin[e])
+                        w = negM[bn, p] * e_la[e]
+                        sz += gl[1, p] * w
+                        sc += gl[2, p] * w
+                        ss += gl[3, p] * w
+                        Gt[bn, p] += (gl[1, p] * z + gl[2, p] * c + gl[3, p] * s) * e_la[e]
+                    acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
+                H = gradient_table(Lb, nb, negM, Etab, Gt, gl[0])
+            else:
+                negM, H = np.zeros((1, npx)), gl[0:1].copy()
+            for k in range(i0, i1):  # C: d loss / d power and its moments per instance
+                g = sorted_g[k]
+                z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
+                mx, my = gpar[g, G_MX], gpar[g, G_MY]
+                s0 = s1 = s2 = s3 = s4 = 0.0
+                for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
+                    p, bn = np.uint64(e_p[e]), np.uint64(e_bin[e])
+                    al = e_al[e]
+                    q = gl[1, p] * z + gl[2, p] * c + gl[3, p] * s  # d loss / d w
+                    step = min(max((amax - al) * BIG, 0.0), 1.0)  # 0 where alpha was clamped
+                    gp = (H[bn, p] + q * negM[bn, p]) * al / (al - 1.0) * step
+                    dx, dy = px[p] - mx, py[p] - my
+                    s0 += gp * dx
+                    s1 += gp * dy
+                    s2 += gp * dx * dx
+                    s3 += gp * dx * dy
+                    s4 += gp * dy * dy
+                acc[k, 0], acc[k, 1], acc[k, 2], acc[k, 3], acc[k, 4] = s0, s1, s2, s3, s4
+
+
+@njit(**_PAR)
+def reduce_visibility(gstart, inst_pos, maxw, vis_weight, visible):
+    """visible [G] bool: the largest weight of some instance of the Gaussian reaches ``vis_weight``."""
+    for g in prange(gstart.shape[0] - 1):
+        vis = False
+        for j in range(gstart[g], gstart[g + 1]):
+            vis = vis or maxw[inst_pos[j]] >= vis_weight
+        visible[g] = vis
+
+
+@njit(**_PAR)
+def reduce_gradients(gstart, inst_pos, gpar, acc, grads):
+    """grads [G, 8]: d loss / d (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a), summing the
+    instance accumulators ``acc`` of each Gaussian in instance order (0 for undrawn Gaussians)."""
+    for g in prange(gstart.shape[0] - 1):
+        s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+        for j in range(gstart[g], gstart[g + 1]):
+            k = inst_pos[j]
+            s0 += acc[k, 0]
+            s1 += acc[k, 1]
+            s2 += acc[k, 2]
+            s3 += acc[k, 3]
+            s4 += acc[k, 4]
+            s5 += acc[k, 5]
+            s6 += acc[k, 6]
+            s7 += acc[k, 7]
+        if gstart[g] == gstart[g + 1]:
+            for c in range(8):
+                grads[g, c] = 0.0
+            continue
+        # power = log op - (q_xx dx^2 + 2 q_xy dx dy + q_yy dy^2) / 2 with dx = x - mean x
+        grads[g, 0] = gpar[g, G_QXX] * s0 + gpar[g, G_QXY] * s1
+        grads[g, 1] = gpar[g, G_QXY] * s0 + gpar[g, G_QYY] * s1
+        grads[g, 2] = -0.5 * s2
+        grads[g, 3] = -s3
+        grads[g, 4] = -0.5 * s4
+        grads[g, 5], grads[g, 6], grads[g, 7] = s5, s6, s7

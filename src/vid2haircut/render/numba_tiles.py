@@ -1,0 +1,136 @@
+"""Screen-tile binning of Gaussian windows for the fused CPU compositor (numba).
+
+Each frame is cut into square screen tiles of ``tile`` x ``tile`` pixels (tile id =
+(frame * nty + ty) * ntx + tx). Every (Gaussian, tile) pair where the Gaussian's pixel window
+(:class:`vid2haircut.render.footprint.Windows`) may touch the tile is an *instance*; instances are
+listed tile by tile, and inside a tile by increasing Gaussian index, so that every later
+summation has a fixed order. Tiles are then dealt to the worker threads (largest first, each to
+the least loaded worker); which thread composites a tile never changes its result.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# columns of the int64 window table ``wint`` [G, 4] and the float32 table ``wflt`` [G, 2]
+W_HZ, W_ULO, W_NCOL, W_HGT = 0, 1, 2, 3
+W_SLOPE, W_V0 = 0, 1
+
+
+@njit(cache=True)
+def vstart(slope, u, v0):
+    """First window row of column ``u``: ceil(slope * u + v0), in float32 exactly as footprint.py does."""
+    t = slope * np.float32(u)
+    t = t + v0
+    return math.ceil(t)
+
+
+@njit(cache=True, parallel=True)
+def bin_windows(wint, wflt, frame, nframes, width, height, tile):
+    """List the instances of every tile.
+
+    Args:
+        wint: [G, 4] int64 (horizontal, u_lo, ncols, height) of each window (ncols 0: not drawn).
+        wflt: [G, 2] float32 (slope, v0). frame: [G] int64 frame of each Gaussian.
+        nframes, width, height: image stack size; tile: tile size in pixels.
+
+    Returns:
+        gstart [G + 1] (instances of Gaussian g are gstart[g]:gstart[g + 1] in Gaussian order),
+        inst_pos [n] (position of each of them in the tile order), tile_start [NT + 1] (instances
+        of tile t are tile_start[t]:tile_start[t + 1] in tile order), sorted_g [n] (their Gaussian).
+    """
+    G = wint.shape[0]
+    ntx = (width + tile - 1) // tile
+    nty = (height + tile - 1) // tile
+    box = np.zeros((G, 4), np.int64)
+    cnt = np.zeros(G, np.int64)
+    for g in prange(G):
+        ncol = wint[g, W_NCOL]
+        sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
+        if ncol <= 0 or not (math.isfinite(sl) and math.isfinite(v0)):
+            continue
+        hz = wint[g, W_HZ] != 0
+        su = width if hz else height
+        sv = height if hz else width
+        ua = wint[g, W_ULO]
+        ub = min(ua + ncol - 1, su - 1)
+        if ub < ua:
+            continue
+        va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
+        vlo = max(min(va, vb), 0)
+        vhi = min(max(va, vb) + wint[g, W_HGT] - 1, sv - 1)
+        if vhi < vlo:
+            continue
+        if hz:
+            box[g, 0], box[g, 1], box[g, 2], box[g, 3] = ua // tile, ub // tile, vlo // tile, vhi // tile
+        else:
+            box[g, 0], box[g, 1], box[g, 2], box[g, 3] = vlo // tile, vhi // tile, ua // tile, ub // tile
+        cnt[g] = (box[g, 1] - box[g, 0] + 1) * (box[g, 3] - box[g, 2] + 1)
+    gstart = np.zeros(G + 1, np.int64)
+    for g in range(G):
+        gstart[g + 1] = gstart[g] + cnt[g]
+    n = gstart[G]
+    inst_tile = np.empty(n, np.int64)
+    for g in prange(G):
+        j = gstart[g]
+        for ty in range(box[g, 2], box[g, 3] + 1):
+            for tx in range(box[g, 0], box[g, 1] + 1):
+                if j < gstart[g + 1]:
+                    inst_tile[j] = (frame[g] * nty + ty) * ntx + tx
+                    j += 1
+    NT = nframes * nty * ntx
+    tile_start = np.zeros(NT + 1, np.int64)
+    for j in range(n):
+        tile_start[inst_tile[j] + 1] += 1
+    for t in range(NT):
+        tile_start[t + 1] += tile_start[t]
+    cursor = tile_start[:NT].copy()
+    sorted_g = np.empty(n, np.int64)
+    inst_pos = np.empty(n, np.int64)
+    for g in range(G):
+        for j in range(gstart[g], gstart[g + 1]):
+            pos = cursor[inst_tile[j]]
+            cursor[inst_tile[j]] += 1
+            sorted_g[pos] = g
+            inst_pos[j] = pos
+    return gstart, inst_pos, tile_start, sorted_g
+
+
+@njit(cache=True)
+def assign_tiles(tile_start, nworkers):
+    """Deal the non-empty tiles to ``nworkers`` workers, largest first (cost: instance count).
+
+    Returns:
+        work_start [nworkers + 1], work_tiles [n_nonempty]: worker w composites tiles
+        work_tiles[work_start[w]:work_start[w + 1]].
+    """
+    NT = tile_start.shape[0] - 1
+    cost = np.empty(NT, np.int64)
+    for t in range(NT):
+        cost[t] = tile_start[t + 1] - tile_start[t]
+    order = np.argsort(-cost, kind="mergesort")
+    load = np.zeros(nworkers, np.int64)
+    owner = np.full(NT, -1, np.int64)
+    for i in range(NT):
+        t = order[i]
+        if cost[t] == 0:
+            break
+        w = np.argmin(load)
+        owner[t] = w
+        load[w] += cost[t] + 8
+    work_start = np.zeros(nworkers + 1, np.int64)
+    for t in range(NT):
+        if owner[t] >= 0:
+            work_start[owner[t] + 1] += 1
+    for w in range(nworkers):
+        work_start[w + 1] += work_start[w]
+    cursor = work_start[:nworkers].copy()
+    work_tiles = np.empty(work_start[nworkers], np.int64)
+    for t in range(NT):
+        if owner[t] >= 0:
+            work_tiles[cursor[owner[t]]] = t
+            cursor[owner[t]] += 1
+    return work_start, work_tiles
