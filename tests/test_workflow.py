@@ -51,6 +51,31 @@ def test_front_stages_write_their_artifacts(workflow_run):
         assert tg["mask"].shape == (96, 96) and tg["mask"].max() > 0
 
 
+def test_fitting_evaluation_and_summary(workflow_run):
+    import pandas as pd
+
+    res = workflow_run / "results"
+    for path in ("stage1/synth_t000/HAIR/strands.npz", "stage1/synth_t000/HAIR/prior_strands.npz",
+                 "stage2/synth_t000/HAIR/full/strands.npz", "stage2/synth_t000/HAIR/no_deformation/strands.npz",
+                 "figures/synth_t000/HAIR/coverage.png", "figures/synth_t000/HAIR/full/turntable.png"):
+        assert (res / path).stat().st_size > 0, path
+    strands = np.load(res / "stage2/synth_t000/HAIR/full/strands.npz")
+    assert strands["points"].ndim == 3 and strands["points"].shape[2] == 3
+    df = pd.read_csv(res / "summary/metrics.csv")
+    rows = set(zip(df["stage"], df["variant"]))
+    assert rows == {("prior", "single_view"), ("stage1", "single_view"), ("stage2", "full"),
+                    ("stage2", "no_deformation")}
+    assert np.isfinite(df["chamfer_pts"]).all() and (df["chamfer_pts"] > 0).all()
+    assert (workflow_run / "resources/prior/tiny/prior.json").exists()
+
+
+def test_report_html(workflow_run):
+    proc = _snakemake(workflow_run, "--report", "report.html")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    html = (workflow_run / "report.html").read_text(errors="replace")
+    assert "turntable" in html and "coverage" in html and "metrics.csv" in html
+
+
 def test_second_run_has_nothing_to_do(workflow_run):
     proc = _snakemake(workflow_run, "-n")
     assert proc.returncode == 0

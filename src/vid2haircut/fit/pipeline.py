@@ -23,6 +23,7 @@ from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, sa
                                      write_loss_curve, write_record, write_renders, write_strands)
 from vid2haircut.fit.stage1 import FitResult, fit_stage1, initial_hairmap, prior_view_input
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2
+from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.prior.codec import StrandCodec
 
 __all__ = ["run_stage1", "run_stage2", "stage1_config", "stage2_config"]
@@ -97,6 +98,9 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
         prior = (net, prior_view_input(data, net.cfg.input_size, cfg.device))
         z0, m0 = initial_hairmap(data, codec, prior)
         write_hairmap(out / "prior_hairmap.npz", z0, m0, codec.fingerprint(), data.head_model)
+        # The prior's prediction alone (the "prior" row of the evaluation table).
+        save_strands(out / "prior_strands.npz",
+                     dense_strands(z0, m0, data.head, codec.to("cpu"), cfg.n_dense, cfg.seed, data.head_model))
     else:
         codec = StrandCodec.load(codec_path)
     res = fit_stage1(data, codec, cfg, prior, progress=progress)
