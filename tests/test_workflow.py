@@ -62,9 +62,10 @@ def test_fitting_evaluation_and_summary(workflow_run):
     strands = np.load(res / "stage2/synth_t000/HAIR/full/strands.npz")
     assert strands["points"].ndim == 3 and strands["points"].shape[2] == 3
     df = pd.read_csv(res / "summary/metrics.csv")
-    rows = set(zip(df["stage"], df["variant"]))
-    assert rows == {("prior", "single_view"), ("stage1", "single_view"), ("stage2", "full"),
-                    ("stage2", "no_deformation")}
+    runs = {("prior", "single_view"), ("stage1", "single_view"), ("stage2", "full"), ("stage2", "no_deformation")}
+    sequences = {("synth_t000", "HAIR"), ("synth_t001", "HAIR"), ("synth_t002", "FREE")}
+    assert set(zip(df["subject"], df["seq"], df["stage"], df["variant"])) == {s + r for s in sequences for r in runs}
+    assert len(df) == 12
     assert np.isfinite(df["chamfer_pts"]).all() and (df["chamfer_pts"] > 0).all()
     assert (workflow_run / "resources/prior/tiny/prior.json").exists()
 
