@@ -58,9 +58,11 @@ def test_prior_network_is_fine_tuned(toy):
         torch.manual_seed(0)
         net = PriorNet(PriorConfig.tiny())
     x = prior_view_input(toy.data, net.cfg.input_size, "cpu")
-    assert x.shape == (1, net.cfg.in_channels, 64, 64) and float(x[0, 0].sum()) > 0         # the hair mask reaches the crop
+    assert x.shape == (1, net.cfg.in_channels, 64, 64)
+    assert float(x[0, 0].sum()) > 0                                           # the hair mask reaches the crop
     head_before = net.head.weight.detach().clone()
-    res = fit_stage1(toy.data, toy.codec, _cfg(lr_prior=1e-3, iterations=8), prior=(net, x), progress=False)
+    res = fit_stage1(toy.data, toy.codec, _cfg(finetune_prior=True, lr_prior=1e-3, iterations=8), prior=(net, x),
+                     progress=False)
     assert not torch.equal(net.head.weight.detach(), head_before)          # the network's weights moved
     assert res.history.total[-1] < res.history.total[0]
     assert res.z.shape == (16, 16, 16)

@@ -4,8 +4,10 @@
 - :mod:`.data`: keyframes, head poses, targets and cameras as tensors at the fitting resolution.
 - :mod:`.losses`: the loss terms; :mod:`.scene`: guides of a map, rendering, image terms.
 - :mod:`.visibility`: visibility-aware gradient masking; :mod:`.deform`: the deformation MLP.
-- :mod:`.trainer`: sums the weighted loss dict and steps; :mod:`.stage1`, :mod:`.stage2`: the models.
-- :mod:`.outputs`: artifacts; :mod:`.pipeline`: file-level ``run_stage1`` / ``run_stage2``.
+- :mod:`.trainer`: sums the weighted loss dict and steps; :mod:`.optim`: Adam that moves weakly
+  constrained texels slowly; :mod:`.stage1`, :mod:`.stage2`: the models.
+- :mod:`.outputs`: artifacts; :mod:`.pipeline`: file-level ``run_stage1`` / ``run_stage2``;
+  :mod:`.toy`: a tiny known problem for tests.
 """
 
 from vid2haircut.fit.config import LossWeights, RenderSettings, Stage1Config, Stage2Config, Switches, apply_overrides

@@ -31,13 +31,15 @@ class LossWeights:
     penetration: float = 1.0e4
     """mean(relu(-sdf)) of the strand points, metres (Vid2Haircut: 1e4)."""
     smooth_length: float = 1.0
-    """Neighbour-strand smoothness of strand length (relative difference; method.md: 1)."""
-    smooth_length_back: float = 100.0
-    """Length smoothness weight in the back region (behind the ears; method.md: 100)."""
-    smooth_direction: float = 1.0
-    """Neighbour-strand smoothness of segment directions, mean (1 - cos) (method.md: 1)."""
+    """Neighbour-strand smoothness of strand length, |Laplacian of length| in metres (method.md: 1)."""
+    smooth_length_back: float = 1.0
+    """Length smoothness weight in the back region (method.md: 100; measured on generated sequences,
+    100 pulls layered cuts such as a bob far from the truth, so the back is not weighted up)."""
+    smooth_direction: float = 0.3
+    """Neighbour-strand smoothness of directions, mean (1 - cos) of nearby segments (method.md: 1;
+    0.3 measured better: at 1 it trades Chamfer_pts for Chamfer_angle)."""
     pca: float = 1.0
-    """PCA-coefficient consistency of unobserved texels with their neighbours (tuned)."""
+    """PCA-coefficient consistency of unobserved texels with their neighbours (not published; 1)."""
     canonical: float = 1.0e4
     """Offsets of the reference (canonical) keyframe pushed to zero, mean |dx|^2 in m^2 (method.md: 1e4)."""
     motion: float = 1.0e-6
@@ -89,22 +91,26 @@ class Stage1Config:
     """Steps during which only the first ``coarse_components`` PCA components are optimised."""
     coarse_components: int = 10
     """PCA components optimised during the coarse steps (method.md: 10)."""
-    finetune_prior: bool = True
-    """With a prior: fine-tune its weights (the method); False optimises Z directly from its prediction."""
+    finetune_prior: bool = False
+    """With a prior: True fine-tunes its weights (Im2Haircut's recipe); False (default, measured better,
+    see :mod:`vid2haircut.fit.stage1`) optimises Z starting from its prediction."""
     lr_prior: float = 1.0e-4
     """AdamW learning rate when fine-tuning the prior network (method.md: 1e-4)."""
     weight_decay_prior: float = 1.0e-3
     """AdamW weight decay when fine-tuning the prior network (method.md: 1e-3)."""
     lr_z: float = 0.03
-    """Adam learning rate when the hair map Z itself is the parameter (whitened units)."""
+    """Learning rate when the hair map Z itself is the parameter (whitened units, first component)."""
     lr_gain_power: float = 0.5
     """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
+    z_optimizer: str = "shared_adam"
+    """Optimiser of Z: "shared_adam" (:mod:`vid2haircut.fit.optim`) or "adam"."""
     map_res: int = 32
     """Hair map resolution R when there is no prior (with a prior: the network's)."""
     mask_threshold: float = 0.5
     """Texels whose baldness-mask value reaches this carry a guide strand."""
-    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01, penetration=1.0e4))
-    """Loss weights (Stage 1 uses silhouette, direction, depth and penetration only)."""
+    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01))
+    """Loss weights (Stage 1 uses silhouette, direction, depth and penetration only; depth 0.01 as
+    Im2Haircut, penetration 1e4 as Vid2Haircut: Im2Haircut's 0.3 leaves strands inside the head)."""
     render: RenderSettings = field(default_factory=RenderSettings)
     """Guide rendering settings."""
     n_dense: int = 10000
@@ -126,19 +132,24 @@ class Stage2Config:
     ramp_steps: int = 50
     """Steps over which the deformation is ramped in linearly from 0 to 1 (method.md: 100)."""
     n_keyframes: int = 6
-    """Keyframes used (the reference plus the others in file order; <= the number available)."""
+    """Keyframes used: the reference, then the others in farthest-(yaw, pitch) order (all when fewer exist)."""
     frames_per_step: int = 0
     """Keyframes rendered per step (0 = all; fewer = a deterministic rotating subset)."""
     lr_z: float = 0.02
-    """Adam learning rate of the hair map Z (whitened units, for the first component)."""
+    """Learning rate of the hair map Z (whitened units, for the first component)."""
     lr_gain_power: float = 0.5
     """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
+    z_optimizer: str = "shared_adam"
+    """Optimiser of Z: "shared_adam" (:mod:`vid2haircut.fit.optim`) or "adam"."""
     lr_mlp: float = 1.0e-2
     """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2)."""
     lr_codes: float = 1.0e-3
     """Adam learning rate of the frame codes (method.md: 1e-3)."""
     max_offset: float = 0.008
     """Largest deformation offset at a strand tip, metres (method.md: 8 mm)."""
+    code_init_std: float = 1.0
+    """Standard deviation of the initial frame codes: with the published lr 1e-3 and codes near 0,
+    the frames stay indistinguishable for hundreds of steps and the field does not move."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     weights: LossWeights = field(default_factory=LossWeights)

@@ -234,4 +234,5 @@ def load_fit_data(dataset_root: str | Path, subject: str, keyframes_json: str | 
         targets.append(d)
     head = resolve_head(fit.head_model, fit.shape)
     poses = np.stack([fit.world_from_head[fitted.index(t)] for t in order])
-    return make_fit_data(order, targets, cam.K, cam.world_2_cam, poses, head, fit.head_model, size, occlude_head, device)
+    return make_fit_data(order, targets, cam.K, cam.world_2_cam, poses, head, fit.head_model, size, occlude_head,
+                         device)

@@ -43,6 +43,8 @@ class DeformConfig:
     """Largest offset in metres (at the tip)."""
     pinned_fraction: float = 10 / 99
     """Root part of every strand that never moves (first 10 of 99 segments)."""
+    code_init_std: float = 0.01
+    """Standard deviation of the initial frame codes (larger: frames distinguishable from the start)."""
 
 
 def deformation_weight(u: torch.Tensor, pinned_fraction: float) -> torch.Tensor:
@@ -107,12 +109,12 @@ class DeformationField(nn.Module):
     def reset_parameters(self, seed: int = 0) -> None:
         """Deterministic initialisation from ``seed`` (a private ``torch.Generator``, global RNG untouched).
 
-        Frame codes ~ N(0, 0.01^2); linear layers uniform in +-1/sqrt(fan_in) (PyTorch's default
+        Frame codes ~ N(0, code_init_std^2); linear layers uniform in +-1/sqrt(fan_in) (PyTorch's default
         bounds); texel embeddings zero; the last layer zero, so the field starts at rest (zero offsets).
         """
         g = torch.Generator().manual_seed(int(seed))
         w = self.frame_codes.weight
-        w.copy_(torch.randn(w.shape, generator=g) * 0.01)
+        w.copy_(torch.randn(w.shape, generator=g) * self.cfg.code_init_std)
         for layer in [m for m in self.modules() if isinstance(m, nn.Linear)]:
             bound = 1.0 / math.sqrt(layer.in_features)
             for p in (layer.weight, layer.bias):

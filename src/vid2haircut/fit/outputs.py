@@ -3,7 +3,7 @@
 Per stage output folder::
 
     strands.npz        dense canonical hairstyle (StrandSet, metres, head canonical frame, root first,
-                       head_model set; attribute "uv" of the roots)
+                       head_model set; attribute "uv" of the roots); points pushed out of the head
     guides.npz         guide strands (one per hair-bearing texel; attribute "texel_index")
     hairmap.npz        z (K,R,R) float32, mask (R,R) float32, codec_fingerprint, head_model
     codec.npz          the strand codec (so that the next stage needs only this folder)
@@ -30,7 +30,8 @@ from vid2haircut.io.atomic import atomic_path, write_image, write_json, write_np
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 
-__all__ = ["write_hairmap", "load_hairmap", "write_strands", "dense_strands", "render_panel", "write_renders",
+__all__ = ["write_hairmap", "load_hairmap", "write_strands", "dense_strands", "push_out_of_head", "extend_map",
+           "render_panel", "write_renders",
            "write_loss_curve", "save_torch", "load_torch"]
 
 
@@ -56,14 +57,71 @@ def load_hairmap(path: str | Path) -> tuple[torch.Tensor, torch.Tensor, str]:
     return torch.as_tensor(z), torch.as_tensor(mask), fp
 
 
-def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_strands: int, seed: int,
-                  head_model: str) -> StrandSet:
-    """Dense canonical strands of a map (HAAR upsampling, :func:`vid2haircut.prior.hairmap.decode_dense`)."""
-    from vid2haircut.prior.hairmap import HairMap, decode_dense
+def push_out_of_head(points: torch.Tensor, head: Any, margin: float = 1e-3, iters: int = 4) -> torch.Tensor:
+    """Move strand points (not the roots) that lie inside the head, or closer than ``margin`` to it,
+    along the SDF gradient to ``margin`` outside. points: (M,P,3) -> (M,P,3) (detached).
 
+    Dense strands decoded at roots between the guides' texel centres (root-relative offsets in the
+    canonical frame, no per-root frame) can dip into a curved scalp; this resolves it.
+    """
+    p = points.detach().clone()
+    if p.numel() == 0 or margin is None:
+        return p
+    for _ in range(int(iters)):
+        q = p[:, 1:].clone().requires_grad_(True)
+        with torch.enable_grad():
+            d = head.sdf(q)
+            (g,) = torch.autograd.grad(d.sum(), q)
+        g = g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        p[:, 1:] = q.detach() + torch.relu(margin - d.detach())[..., None] * g
+    return p
+
+
+def extend_map(z: torch.Tensor, hair: torch.Tensor) -> torch.Tensor:
+    """Fill the coefficients of texels without a guide from their guide neighbours, ring by ring.
+
+    Dense strands near the hairline interpolate between a guide and its neighbours; a neighbour
+    without a guide (bald or off the scalp) holds arbitrary coefficients (e.g. the codec's mean
+    strand, hanging in front of the face). Each ring of texels next to the filled region gets the
+    mean of its filled 8-neighbours until every texel is filled.
+
+    Args:
+        z: (K,R,R) map; hair: (R,R) bool texels that carry a guide.
+
+    Returns:
+        (K,R,R) map equal to ``z`` on ``hair``.
+    """
+    import torch.nn.functional as F
+
+    out = z.detach().clone()
+    filled = hair.detach().clone().bool()
+    if not bool(filled.any()):
+        return out
+    kernel = torch.ones(1, 1, 3, 3, dtype=out.dtype, device=out.device)
+    while not bool(filled.all()):
+        f = filled.to(out.dtype)
+        num = F.conv2d((out * f)[:, None], kernel, padding=1)[:, 0]
+        den = F.conv2d(f[None, None], kernel, padding=1)[0, 0]
+        ring = ~filled & (den > 0)
+        out[:, ring] = num[:, ring] / den[ring]
+        filled = filled | ring
+    return out
+
+
+def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_strands: int, seed: int,
+                  head_model: str, collision_margin: float | None = 1e-3, threshold: float = 0.5) -> StrandSet:
+    """Dense canonical strands of a map: the map is extended beyond its guides (:func:`extend_map`),
+    upsampled by the HAAR scheme (:func:`vid2haircut.prior.hairmap.decode_dense`) and pushed out
+    of the head (:func:`push_out_of_head`, skipped when ``collision_margin`` is None)."""
+    from vid2haircut.prior.hairmap import HairMap, decode_dense
+    from vid2haircut.prior.scalp import scalp_grid
+
+    valid = torch.as_tensor(scalp_grid(head, int(z.shape[-1])).valid, device=z.device)
+    z_ext = extend_map(z, valid & (mask.detach() >= threshold))
     with torch.no_grad():
-        d = decode_dense(HairMap(z.detach(), mask.detach()), head, codec, n_strands=n_strands, seed=seed)
-    return StrandSet(d.points.cpu().numpy(), {"uv": d.uv.cpu().numpy()}, head_model=head_model)
+        d = decode_dense(HairMap(z_ext, mask.detach()), head, codec, n_strands=n_strands, seed=seed)
+    pts = d.points if collision_margin is None else push_out_of_head(d.points, head, collision_margin)
+    return StrandSet(pts.cpu().numpy(), {"uv": d.uv.cpu().numpy()}, head_model=head_model)
 
 
 def write_strands(out_dir: str | Path, guides: torch.Tensor, texel_index: torch.Tensor, dense: StrandSet,

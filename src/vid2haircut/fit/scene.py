@@ -20,7 +20,7 @@ from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "ZMap"]
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "ZMap", "z_optimizer"]
 
 
 class GuideLayout(NamedTuple):
@@ -122,3 +122,14 @@ class ZMap(nn.Module):
     def forward(self) -> Tensor:
         """(K,R,R) current map."""
         return self.z0 + self.gain * self.delta
+
+
+def z_optimizer(kind: str, groups: list[dict]) -> torch.optim.Optimizer:
+    """The optimiser of the hair-map groups: "shared_adam" (:class:`~vid2haircut.fit.optim.SharedAdam`) or "adam"."""
+    from vid2haircut.fit.optim import SharedAdam
+
+    if kind == "shared_adam":
+        return SharedAdam(groups)
+    if kind == "adam":
+        return torch.optim.Adam(groups)
+    raise ValueError(f"unknown z_optimizer {kind!r} (expected 'shared_adam' or 'adam')")

@@ -1,15 +1,20 @@
 """Stage 1: single-view fit on the reference keyframe (the Im2Haircut baseline).
 
 The hair map Z is initialised from the learned prior's prediction on the reference keyframe's
-targets, then optimised for ``iterations`` steps (100) with the silhouette, direction, depth and
-penetration losses, coarse to fine over the PCA components (the first ``coarse_components`` only
-for ``coarse_steps`` steps: the gradient of the others is cut). Two parameterisations:
+targets (the baldness mask is that prediction, fixed), then optimised for ``iterations`` steps (100)
+with the silhouette, direction, depth and penetration losses, coarse to fine over the PCA
+components (the first ``coarse_components`` only for ``coarse_steps`` steps: the gradient of the
+others is cut). Two parameterisations:
 
-- with a prior: the prior network's weights are fine-tuned (AdamW, lr 1e-4, weight decay 1e-3) and
-  Z = net(x) with x the prior input of the reference view; the baldness mask is the prior's initial
-  prediction (fixed);
-- without a prior: Z itself is the parameter (Adam), initialised to zeros (the codec's mean strand)
-  on every valid scalp texel.
+- ``finetune_prior=True`` (Im2Haircut's recipe): the prior network's weights are fine-tuned (AdamW,
+  lr 1e-4, weight decay 1e-3) and Z = net(x), x the prior input of the reference view;
+- ``finetune_prior=False`` (default): Z itself is the parameter, as an offset from the prior's
+  prediction (:class:`~vid2haircut.fit.scene.ZMap`, :class:`~vid2haircut.fit.optim.SharedAdam`).
+  Measured on generated sequences (benchmarks/quality.py), fine-tuning the network fits the
+  reference view but moves the hair that view does not see (the back, hair hidden behind other
+  hair) far from the truth, ending worse than the prior alone; optimising Z leaves it in place.
+
+Without a prior, Z starts at zeros (the codec's mean strand) on every valid scalp texel.
 """
 
 from __future__ import annotations
@@ -26,7 +31,7 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage1Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.losses import penetration_loss
-from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames
+from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames, z_optimizer
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.prior.codec import StrandCodec, component_mask
 from vid2haircut.render import StrandRender
@@ -133,11 +138,11 @@ class Stage1Model(nn.Module):
         return [{"params": [self.zmap.delta], "lr": self.cfg.lr_z, "name": "z"}]
 
     def make_optimizers(self) -> list[torch.optim.Optimizer]:
-        """AdamW for the prior net, Adam for Z."""
+        """AdamW for the prior net; for Z the configured ``z_optimizer``."""
         groups = self.get_param_groups()
         if self.net is not None:
             return [torch.optim.AdamW(groups)]
-        return [torch.optim.Adam(groups)]
+        return [z_optimizer(self.cfg.z_optimizer, groups)]
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
         """silhouette, direction, depth (reference keyframe) and penetration terms."""

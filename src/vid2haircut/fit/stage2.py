@@ -26,7 +26,7 @@ from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
 from vid2haircut.fit.losses import motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses
-from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames
+from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames, z_optimizer
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.fit.visibility import VisibilityGate, texel_visible_fraction
@@ -55,7 +55,8 @@ class Stage2Model(nn.Module):
         self.register_buffer("mask", mask.detach().clone())
         self.layout = guide_layout(data.head, mask, cfg.mask_threshold, codec.n_points, cfg.render.n_points, dev)
         n = int(self.layout.texel_index.numel())
-        self.deform = (DeformationField(data.n_frames, n, DeformConfig(max_offset=cfg.max_offset), seed=cfg.seed)
+        dcfg = DeformConfig(max_offset=cfg.max_offset, code_init_std=cfg.code_init_std)
+        self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
                        .to(dev) if cfg.switches.use_deformation else None)
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
@@ -89,8 +90,12 @@ class Stage2Model(nn.Module):
         return groups
 
     def make_optimizers(self) -> list[torch.optim.Optimizer]:
-        """One Adam over all groups."""
-        return [torch.optim.Adam(self.get_param_groups())]
+        """The configured ``z_optimizer`` for Z, Adam for the deformation field."""
+        groups = self.get_param_groups()
+        opts = [z_optimizer(self.cfg.z_optimizer, groups[:1])]
+        if len(groups) > 1:
+            opts.append(torch.optim.Adam(groups[1:]))
+        return opts
 
     @property
     def z(self) -> Tensor:
@@ -132,8 +137,8 @@ class Stage2Model(nn.Module):
             pen = pen + penetration_loss(moved, self.data.head.sdf)
         losses["penetration"] = pen
         if cfg.switches.use_smoothness:
-            losses.update(smoothness_losses(canon, self.layout.graph, cfg.weights.smooth_length_back
-                                            / max(cfg.weights.smooth_length, 1e-12)))
+            back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
+            losses.update(smoothness_losses(canon[:, self.layout.render_index], self.layout.graph, back))
         if cfg.switches.use_pca_consistency:
             losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
         if scale > 0.0:
