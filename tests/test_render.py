@@ -12,7 +12,7 @@ import torch
 
 from vid2haircut.camera import intrinsics_from_fov, look_at
 from vid2haircut.render import mesh_depth, render_strands, segment_gaussians
-from vid2haircut.render.numba_backend import numba_available, resolve_backend
+from vid2haircut.render.numba_backend import numba_available
 
 sys.path.insert(0, str(Path(__file__).parent))
 from render_reference import reference_render  # noqa: E402
@@ -323,87 +323,3 @@ def test_projection_jacobian_matches_finite_differences():
         d[i] = 1e-6
         num = (project_camera_points(cam + d, K)[0] - project_camera_points(cam - d, K)[0]) / 2e-6
         assert torch.allclose(J[..., i], num, atol=1e-5)
-
-
-# ---------------------------------------------------------------- backends
-
-
-def _backend_scene(dtype):
-    """Two frames of 40 wavy strands x 8 points crossing at mm depth spacing, 48 x 40 px, a head plane."""
-    size_w, size_h = 48, 40
-    K0, E0 = orbit_camera(size_w)
-    K0[:, 1, 2] -= 4.0  # principal point of a 48 x 40 image
-    E1 = look_at(np.array([0.08, 0.03, 0.23]), np.zeros(3))[None]
-    pts = np.concatenate([random_scene(20, n=40, p=8, spread=0.025), random_scene(21, n=40, p=8, spread=0.025)])
-    K = torch.tensor(np.concatenate([K0, K0]), dtype=dtype)
-    E = torch.tensor(np.concatenate([E0, E1]), dtype=dtype)
-    head = quad_depth(0.252, size_w, torch.tensor(K0), torch.eye(4, dtype=DT)[None])[:, :size_h].expand(2, -1, -1)
-    return torch.tensor(pts, dtype=dtype, requires_grad=True), K, E, size_w, size_h, head.to(dtype).contiguous()
-
-
-def _render_and_grad(backend, dtype, shading=True):
-    pts, K, E, w, h, head = _backend_scene(dtype)
-    gen = torch.Generator().manual_seed(1)
-    R = torch.randn(2, h, w, 2, generator=gen, dtype=dtype)
-    out = render_strands(pts, K, E, w, h, head_depth=head, backend=backend, shading=shading)
-    loss = (out.silhouette * R[..., 0]).sum() + (out.depth_normalized * R[..., 1]).sum() + (out.direction * R).sum()
-    return out, torch.autograd.grad(loss, pts)[0]
-
-
-@pytest.mark.skipif(not numba_available(), reason="needs numba")
-@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-9), (torch.float32, 1e-5)])
-def test_backends_agree_on_random_scene(dtype, tol):
-    """The numba and torch kernels implement the same model: values and gradients agree to round-off."""
-    a, ga = _render_and_grad("torch", dtype)
-    b, gb = _render_and_grad("numba", dtype)
-    assert a.mask.sum() > 300 and a.visibility.any() and not a.visibility.all()  # a busy, partly hidden scene
-    for name in ("silhouette", "depth", "depth_normalized", "direction"):
-        x, y = getattr(a, name), getattr(b, name)
-        assert x.dtype == y.dtype == dtype and x.shape == y.shape
-        assert float((x - y).detach().abs().max()) < tol, name
-    assert torch.equal(a.visibility, b.visibility) and torch.equal(a.mask, b.mask)
-    assert float((ga - gb).abs().max()) < tol * float(ga.abs().max())
-    # silhouette only
-    (a, ga), (b, gb) = _render_and_grad("torch", dtype, False), _render_and_grad("numba", dtype, False)
-    assert float((a.silhouette - b.silhouette).detach().abs().max()) < tol
-    assert float((ga - gb).abs().max()) < tol * float(ga.abs().max())
-
-
-@pytest.mark.skipif(not numba_available(), reason="needs numba")
-def test_numba_backend_is_deterministic_for_any_thread_count():
-    threads = torch.get_num_threads()
-    try:
-        runs = []
-        for n in (1, 2, 2):
-            torch.set_num_threads(n)  # the numba kernels use as many threads as torch
-            runs.append(_render_and_grad("numba", torch.float32))
-    finally:
-        torch.set_num_threads(threads)
-    (a, ga), *rest = runs
-    for b, gb in rest:
-        for x, y in zip(a[:7], b[:7]):
-            assert torch.equal(x, y)
-        assert torch.equal(ga, gb)
-
-
-def test_backend_choice():
-    pts = torch.zeros(1, 1, 2, 3)
-    assert resolve_backend("torch", pts) == "torch"
-    assert resolve_backend("auto", pts) == ("numba" if numba_available() else "torch")
-    assert resolve_backend("auto", pts.half()) == "torch"
-    with pytest.raises(ValueError, match="backend must be one of"):
-        resolve_backend("fast", pts)
-    with pytest.raises(ValueError, match="numba"):
-        resolve_backend("numba", pts.half())
-
-
-@pytest.mark.skipif(not numba_available(), reason="needs numba")
-def test_numba_backend_from_two_python_threads():
-    """Concurrent renders (e.g. from a thread pool) wait for each other instead of crashing."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    ref = _render_and_grad("numba", torch.float64)
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        results = list(pool.map(lambda _: _render_and_grad("numba", torch.float64), range(4)))
-    for out, grad in results:
-        assert torch.equal(out.silhouette, ref[0].silhouette) and torch.equal(grad, ref[1])
