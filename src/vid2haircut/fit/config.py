@@ -65,6 +65,9 @@ class RenderSettings:
     """Depth-compositing bins of the renderer."""
     depth_bin: float = 0.002
     """Depth-bin size of the renderer, metres."""
+    vis_weight: float = 0.3
+    """A guide segment counts as visible in a keyframe when its compositing weight reaches this at
+    some pixel (drives the visibility-aware updates and the observed-texel test)."""
 
 
 @dataclass

@@ -85,7 +85,8 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     head_depth = data.head_depth[fr] if data.head_depth is not None else None
     return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
                           strand_width=settings.strand_width, head_depth=head_depth, bins=settings.bins,
-                          depth_bin=settings.depth_bin, shading=shading)
+                          depth_bin=settings.depth_bin, vis_weight=settings.vis_weight,
+                          shading=shading)
 
 
 def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, Tensor]:
