@@ -1,11 +1,11 @@
 """Stage times of a Snakemake run, read from the rules' ``benchmark:`` files.
 
-Every rule of the workflow writes ``benchmarks/<rule>/<wildcards>.tsv`` (Snakemake's benchmark
+Every rule of the workflow writes ``benchmarks/rules/<rule>/<wildcards>.tsv`` (Snakemake's benchmark
 format: wall seconds ``s``, ``max_rss`` in MB, ``cpu_time`` in seconds, ...). This prints one
 Markdown row per file (rule, wildcards, wall s, CPU s, peak RSS) and the total of the fitting
 stages (stage1 + stage2), e.g. after ``make demo``:
 
-    .venv/bin/python benchmarks/stage_times.py [--root benchmarks] [--subject synth_0000]
+    .venv/bin/python benchmarks/stage_times.py [--root benchmarks/rules] [--subject synth_0000]
 """
 
 from __future__ import annotations
@@ -53,7 +53,7 @@ def table(rows: list[tuple[str, str, dict]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--root", default="benchmarks", help="folder holding the rules' benchmark files")
+    ap.add_argument("--root", default="benchmarks/rules", help="folder holding the rules' benchmark files")
     ap.add_argument("--subject", default=None, help="only files whose wildcards name this subject")
     args = ap.parse_args(argv)
     rows = collect(Path(args.root), args.subject)

@@ -35,7 +35,7 @@ def test_synthesize_rule_writes_a_sequence(workflow_run):
     assert gt["points"].shape == (400, 24, 3)
     assert len(list((seq / "images").rglob("frame_*"))) == 8
     assert (workflow_run / "logs/synthesize/synth_t000/HAIR.log").exists()
-    assert (workflow_run / "benchmarks/synthesize/synth_t000/HAIR.tsv").exists()
+    assert (workflow_run / "benchmarks/rules/synthesize/synth_t000/HAIR.tsv").exists()
     assert (workflow_run / "resources/head/proxy-v1/head.obj").exists()
 
 
@@ -99,3 +99,20 @@ def test_select_sequences(tmp_path):
         select_sequences(tmp_path, set(), ["s1/B"])
     with pytest.raises(ValueError, match="subject/SEQ"):
         select_sequences(tmp_path, set(), ["nosl"])
+
+
+def test_stage_times_reads_the_benchmark_files(workflow_run):
+    """benchmarks/stage_times.py turns the run's Snakemake benchmark files into the README table."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import stage_times
+    finally:
+        sys.path.pop(0)
+    rows = stage_times.collect(workflow_run / "benchmarks" / "rules", "synth_t000")
+    rules = {rule for rule, _, _ in rows}
+    assert {"synthesize", "stage1", "stage2", "evaluate"} <= rules
+    assert all(r["s"] > 0 for _, _, r in rows)
+    text = stage_times.table(rows)
+    fit = sum(r["s"] for rule, _, r in rows if rule in ("stage1", "stage2"))
+    assert f"stage1 + stage2 wall time: {fit:.1f} s" in text
+    assert "| stage2 | synth_t000/HAIR/full |" in text

@@ -18,7 +18,7 @@ rule evaluate:
     log:
         "logs/evaluate/{subject}/{seq}/{stage}/{variant}.log",
     benchmark:
-        "benchmarks/evaluate/{subject}/{seq}/{stage}/{variant}.tsv"
+        "benchmarks/rules/evaluate/{subject}/{seq}/{stage}/{variant}.tsv"
     shell:
         "{params.cli} evaluate --pred {input.strands} --gt {input.gt} --out {output.metrics}"
         " --n-points {params.n_points} --max-points {params.max_points} --seed {params.seed} > {log} 2>&1"
@@ -40,7 +40,7 @@ rule aggregate:
     log:
         "logs/aggregate/summary.log",
     benchmark:
-        "benchmarks/aggregate/summary.tsv"
+        "benchmarks/rules/aggregate/summary.tsv"
     shell:
         "{params.cli} aggregate --inputs {input.metrics} {params.no_gt}"
         " --out-csv {output.csv} --out-md {output.md} > {log} 2>&1"
@@ -64,7 +64,7 @@ rule turntable:
     log:
         "logs/turntable/{subject}/{seq}/{variant}.log",
     benchmark:
-        "benchmarks/turntable/{subject}/{seq}/{variant}.tsv"
+        "benchmarks/rules/turntable/{subject}/{seq}/{variant}.tsv"
     shell:
         "{params.cli} figures turntable --strands {input.strands} {params.gt} --head {input.head}"
         " --out {output.png} > {log} 2>&1"
@@ -88,7 +88,7 @@ rule coverage:
     log:
         "logs/coverage/{subject}/{seq}.log",
     benchmark:
-        "benchmarks/coverage/{subject}/{seq}.tsv"
+        "benchmarks/rules/coverage/{subject}/{seq}.tsv"
     shell:
         "{params.cli} figures coverage --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " --keyframes {input.keyframes} --head {input.head} --out {output.png} > {log} 2>&1"

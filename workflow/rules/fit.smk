@@ -37,7 +37,7 @@ rule stage1:
     log:
         "logs/stage1/{subject}/{seq}.log",
     benchmark:
-        "benchmarks/stage1/{subject}/{seq}.tsv"
+        "benchmarks/rules/stage1/{subject}/{seq}.tsv"
     threads: 2
     shell:
         "{params.cli} stage1 --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
@@ -81,7 +81,7 @@ rule stage2:
     log:
         "logs/stage2/{subject}/{seq}/{variant}.log",
     benchmark:
-        "benchmarks/stage2/{subject}/{seq}/{variant}.tsv"
+        "benchmarks/rules/stage2/{subject}/{seq}/{variant}.tsv"
     threads: 2
     shell:
         "{params.cli} stage2 --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"

@@ -23,7 +23,7 @@ rule keyframes:
     log:
         "logs/keyframes/{subject}/{seq}.log",
     benchmark:
-        "benchmarks/keyframes/{subject}/{seq}.tsv"
+        "benchmarks/rules/keyframes/{subject}/{seq}.tsv"
     shell:
         "{params.cli} keyframes --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " {params.camera} --out {params.out_dir} --num-keyframes {params.n} --landmarks {params.landmarks}"
@@ -53,7 +53,7 @@ rule fit_head:
     log:
         "logs/fit_head/{subject}/{seq}.log",
     benchmark:
-        "benchmarks/fit_head/{subject}/{seq}.tsv"
+        "benchmarks/rules/fit_head/{subject}/{seq}.tsv"
     shell:
         "{params.cli} fit_head --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " {params.camera} --out {params.out_dir} --keyframes {input.keyframes} --landmarks {params.landmarks}"
@@ -82,7 +82,7 @@ rule targets:
     log:
         "logs/targets/{subject}/{seq}.log",
     benchmark:
-        "benchmarks/targets/{subject}/{seq}.tsv"
+        "benchmarks/rules/targets/{subject}/{seq}.tsv"
     shell:
         "{params.cli} targets --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " {params.camera} --out {output.targets} --head {input.head} --mask-source {params.mask}"

@@ -10,6 +10,6 @@ rule head_export:
     log:
         "logs/head_export/proxy-v1.log",
     benchmark:
-        "benchmarks/head_export/proxy-v1.tsv"
+        "benchmarks/rules/head_export/proxy-v1.tsv"
     shell:
         "{params.cli} head export {params.out_dir} > {log} 2>&1"

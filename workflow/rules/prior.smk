@@ -18,7 +18,7 @@ rule train_prior:
     log:
         "logs/train_prior/{setting}.log",
     benchmark:
-        "benchmarks/train_prior/{setting}.tsv"
+        "benchmarks/rules/train_prior/{setting}.tsv"
     threads: 2
     shell:
         "{params.cli} train_prior --out-dir {params.out_dir} --setting {wildcards.setting}"

@@ -20,7 +20,7 @@ rule synthesize:
     log:
         "logs/synthesize/{subject}/{seq}.log",
     benchmark:
-        "benchmarks/synthesize/{subject}/{seq}.tsv"
+        "benchmarks/rules/synthesize/{subject}/{seq}.tsv"
     threads: 2
     shell:
         "{params.cli} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
