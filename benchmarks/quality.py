@@ -53,12 +53,13 @@ LABELS = {"prior": "Prior prediction alone", "stage1": "Stage 1 (single view, Z 
           "stage2": "**Stage 2 (Vid2Haircut, 6 keyframes)**", "no_deformation": "Stage 2 w/o deformation MLP",
           "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
           "no_pca": "Stage 2 w/o PCA consistency", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes"}
+SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
 
 log = logging.getLogger("quality")
 
 
-def prepare(work: Path, family: str, seed: int, n_frames: int) -> dict:
+def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN) -> dict:
     """Synthesise one sequence and run the front stages (cached)."""
     from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
     from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
@@ -66,9 +67,14 @@ def prepare(work: Path, family: str, seed: int, n_frames: int) -> dict:
     root, subject = work / "data", f"{family}_{seed}"
     seq_dir = root / subject / "sequences" / "HAIR"
     front = work / "front" / subject
-    if not (seq_dir / "ground_truth" / "meta.json").is_file():
-        synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames),
-                            overwrite=True)
+    meta = seq_dir / "ground_truth" / "meta.json"
+    if meta.is_file():
+        have = json.loads(meta.read_text())["motion"].get("sway_gain")
+        if have is None or abs(have - sway_gain) > 1e-12:
+            raise SystemExit(f"{meta}: cached sequence has sway_gain {have}, not {sway_gain}; use another --work")
+    else:
+        synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames,
+                                                               sway_gain=sway_gain), overwrite=True)
     if not (front / "keyframes.json").is_file():
         run_keyframes(root, subject, "HAIR", front)
     if not (front / "head.npz").is_file():
@@ -169,6 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settings", default=None, help='JSON {"stage1": {...}, "stage2": {...}} overrides')
     p.add_argument("--frames", type=int, default=48, help="frames per synthetic sequence")
     p.add_argument("--threads", type=int, default=None, help="torch threads")
+    p.add_argument("--sway-gain", type=float, default=SWAY_GAIN,
+                   help="hair sway gain of the synthesised sequences (SynthConfig.sway_gain)")
     p.add_argument("--quick", action="store_true", help="2 sequences, short schedules")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
@@ -189,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
         if name not in pool:
             raise SystemExit(f"unknown sequence {name!r}; known: {sorted(pool)}")
         t0 = time.perf_counter()
-        seq = prepare(work, *pool[name], args.frames)
+        seq = prepare(work, *pool[name], args.frames, args.sway_gain)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
         for v in variants:
             strands, secs = run_variant(seq, v, work, prior_dir, settings)

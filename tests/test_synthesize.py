@@ -180,6 +180,20 @@ def test_sway_is_tip_weighted_smooth_and_lags() -> None:
     assert c_lag > 0.95 and c_lag > c_now
 
 
+def test_sway_gain_scales_the_sway_and_is_recorded() -> None:
+    from vid2haircut.synth.sequence import SynthConfig
+
+    rest = np.zeros((1, 40, 3), np.float32)
+    rest[0, :, 1] = -np.linspace(0, 0.2, 40)
+    rest[0, :, 2] = -0.1
+    weak, strong = (SynthConfig(sway_gain=g, sway_max_m=1.0).motion() for g in (0.01, 0.02))
+    assert strong.sway_gain == 0.02 and strong.to_dict()["sway_gain"] == 0.02
+    d = [np.abs(sway_points(rest, m, 12) - rest).max() for m in (weak, strong)]
+    assert d[0] > 1e-3 and abs(d[1] / d[0] - 2.0) < 0.05  # far from the soft bound: linear in the gain
+    with pytest.raises(ValueError, match="sway_gain"):
+        SynthConfig(sway_gain=-1.0).validate()
+
+
 def test_rasterizer_depth_of_a_sphere() -> None:
     import trimesh
 

@@ -17,6 +17,7 @@ rule synthesize:
         noise=SYNTH.get("landmark_noise_px", 1.0),
         yaw=SYNTH.get("yaw_max_deg", 60),
         sway=SYNTH.get("sway_max_m", 0.015),
+        sway_gain=SYNTH.get("sway_gain", 0.012),
     log:
         "logs/synthesize/{subject}/{seq}.log",
     benchmark:
@@ -26,4 +27,4 @@ rule synthesize:
         "{params.cli} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " --family {params.family} --seed {params.seed} --frames {params.frames} --size {params.size}"
         " --strands {params.strands} --points {params.points} --landmark-noise {params.noise}"
-        " --yaw-max {params.yaw} --sway-max {params.sway} --overwrite > {log} 2>&1"
+        " --yaw-max {params.yaw} --sway-max {params.sway} --sway-gain {params.sway_gain} --overwrite > {log} 2>&1"

@@ -31,6 +31,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--yaw-max", type=float, default=d.yaw_max_deg, help="peak yaw, degrees")
     p.add_argument("--pitch-max", type=float, default=d.pitch_max_deg, help="peak pitch, degrees")
     p.add_argument("--sway-max", type=float, default=d.sway_max_m, help="hair sway bound, metres")
+    p.add_argument("--sway-gain", type=float, default=d.sway_gain,
+                   help="hair sway per unit of head angular velocity and lever (larger: hair lags more)")
     p.add_argument("--head-scale", type=float, default=d.head_scale)
     p.add_argument("--head-width", type=float, default=d.head_width)
     p.add_argument("--head-depth", type=float, default=d.head_depth)
@@ -60,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = SynthConfig(family=args.family, seed=args.seed, n_frames=args.frames, width=args.size, height=args.size,
                       n_strands=args.strands, n_points=args.points, landmark_noise_px=args.landmark_noise,
                       yaw_max_deg=args.yaw_max, pitch_max_deg=args.pitch_max, sway_max_m=args.sway_max,
+                      sway_gain=args.sway_gain,
                       head_scale=args.head_scale, head_width=args.head_width, head_depth=args.head_depth,
                       head_crown=args.head_crown, image_format=args.image_format, serial=args.serial,
                       save_frame_points=args.save_frame_points)

@@ -54,6 +54,9 @@ class SynthConfig:
     pitch_max_deg: float = 15.0
     sway_max_m: float = 0.015
     """Bound of the hair sway offset, metres."""
+    sway_gain: float = 0.012
+    """Hair sway per (rad per sequence unit) of head rotation per metre of lever (see
+    :class:`vid2haircut.synth.motion.MotionParams`); larger = hair lags the head more."""
     head_model: str = "proxy-v1"
     head_scale: float = 1.0
     head_width: float = 1.0
@@ -73,7 +76,8 @@ class SynthConfig:
 
     def motion(self) -> MotionParams:
         return MotionParams(n_frames=self.n_frames, yaw_max_deg=self.yaw_max_deg,
-                            pitch_max_deg=self.pitch_max_deg, sway_max_m=self.sway_max_m)
+                            pitch_max_deg=self.pitch_max_deg, sway_max_m=self.sway_max_m,
+                            sway_gain=self.sway_gain)
 
     def validate(self) -> None:
         if self.image_format not in IMAGE_FORMATS:
@@ -83,6 +87,8 @@ class SynthConfig:
                              f"(got {self.n_frames} frames, {self.width}x{self.height})")
         if self.n_strands < 1 or self.n_points < 2:
             raise ValueError(f"need n_strands >= 1 and n_points >= 2 (got {self.n_strands}, {self.n_points})")
+        if self.sway_max_m < 0 or self.sway_gain < 0:
+            raise ValueError(f"sway_max_m and sway_gain must be >= 0 (got {self.sway_max_m}, {self.sway_gain})")
 
 
 def load_head(cfg: SynthConfig):
