@@ -191,3 +191,31 @@ def test_export_and_cli(tmp_path, head):
     assert args.func(args) == 0
     for name in ("head.obj", "landmarks.json", "scalp_uv.npz"):
         assert (tmp_path / "b" / name).read_bytes() == (tmp_path / "a" / name).read_bytes()
+
+
+def _trilinear_reference(grid: SDFGrid, p: np.ndarray) -> float:
+    """Slow per-point trilinear interpolation of the grid (clamped to the box, plus the distance to it)."""
+    lo, hi, vals = np.asarray(grid.bbox_min, float), np.asarray(grid.bbox_max, float), grid.values.astype(float)
+    c = np.clip(p, lo, hi)
+    g = (c - lo) / (hi - lo) * (np.array(vals.shape) - 1)
+    i = np.clip(np.floor(g).astype(int), 0, np.array(vals.shape) - 2)
+    t = g - i
+    out = 0.0
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (t[0] if dx else 1 - t[0]) * (t[1] if dy else 1 - t[1]) * (t[2] if dz else 1 - t[2])
+                out += w * vals[i[0] + dx, i[1] + dy, i[2] + dz]
+    return out + float(np.linalg.norm(p - c))
+
+
+def test_sdf_lookup_matches_a_slow_trilinear_reference(head):
+    rng = np.random.default_rng(5)
+    lo, hi = np.asarray(head.sdf_grid.bbox_min), np.asarray(head.sdf_grid.bbox_max)
+    pts = rng.uniform(lo - 0.05, hi + 0.05, size=(300, 3))    # inside and outside the box
+    ref = np.array([_trilinear_reference(head.sdf_grid, p) for p in pts])
+    got = head.sdf(torch.tensor(pts, dtype=torch.float64)).numpy()
+    np.testing.assert_allclose(got, ref, atol=1e-9)
+    got32 = head.sdf(torch.tensor(pts, dtype=torch.float32)).numpy()
+    np.testing.assert_allclose(got32, ref, atol=2e-6)
+    assert head.sdf(torch.zeros(4, 7, 3)).shape == (4, 7)
