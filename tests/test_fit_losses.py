@@ -11,7 +11,7 @@ import torch
 from vid2haircut.fit.config import LossWeights, Stage2Config, apply_overrides, load_settings
 from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
 from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
-                                    silhouette_loss, smoothness_losses, texel_graph)
+                                    robust, silhouette_loss, smoothness_losses, texel_graph)
 from vid2haircut.fit.trainer import History, weighted_total
 from vid2haircut.fit.visibility import VisibilityGate, point_visibility
 
@@ -101,6 +101,30 @@ def test_texel_graph_and_smoothness():
     assert float(smoothness_losses(cross, two)["smooth_direction"]) == pytest.approx(1.0, abs=1e-5)
     far = torch.stack([line, line + torch.tensor([0.05, 0.0, 0.0])])
     assert float(smoothness_losses(far, two)["smooth_direction"]) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_robust_smoothness_keeps_small_residuals_and_releases_edges():
+    x = torch.tensor([0.0, 1e-4, 0.01, 1.0], requires_grad=True)
+    r = robust(x, 0.01)
+    assert torch.equal(robust(x, 0.0), x)
+    v = r.detach()
+    assert float(v[1]) == pytest.approx(1e-4, rel=0.011) and float(v[2]) == pytest.approx(0.005)
+    assert float(v[3]) < 0.01                                   # saturates at the scale
+    r.sum().backward()
+    assert float(x.grad[0]) == pytest.approx(1.0) and float(x.grad[3]) < 1e-3  # no pull across an edge
+    # a fringe: the centre guide 20 cm shorter than its neighbours; the plain Laplacian pulls it
+    # with a gradient independent of the jump, the robust one barely
+    idx = torch.tensor([r * 4 + c for r in range(3) for c in range(3)])
+    g = texel_graph(idx, 4, back_v=0.0)
+    line = torch.stack([torch.zeros(9), torch.zeros(9), torch.linspace(0, 0.3, 9)], -1)
+    pts = (line[None].repeat(9, 1, 1) + torch.tensor([0.01, 0.0, 0.0]) * torch.arange(9.0)[:, None, None])
+    pts[4, :, 2] *= 1.0 / 3.0
+    grads = []
+    for scale in (0.0, 0.01):
+        p = pts.clone().requires_grad_(True)
+        smoothness_losses(p, g, back_weight=1.0, length_scale=scale)["smooth_length"].backward()
+        grads.append(float(p.grad[4].norm()))
+    assert grads[1] < 0.02 * grads[0]
 
 
 def test_pca_consistency_flows_from_observed_to_unobserved():

@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
-           "smoothness_losses", "pca_consistency_loss", "motion_loss", "quantile_normalize"]
+           "smoothness_losses", "robust", "pca_consistency_loss", "motion_loss", "quantile_normalize"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -133,8 +133,21 @@ def texel_graph(texel_index: Tensor | np.ndarray, res: int, back_v: float = 0.45
     return TexelGraph(torch.as_tensor(p, device=dev), torch.as_tensor(back, device=dev))
 
 
+def robust(x: Tensor, scale: float) -> Tensor:
+    """Edge-preserving penalty of residuals x >= 0: ``scale * x / (x + scale)`` (x itself for scale 0).
+
+    Equal to x for x << scale and saturating at ``scale`` for x >> scale, so small disagreements are
+    smoothed as by the plain L1 penalty while large ones (a parting, the edge of a fringe, a layered
+    cut) are left alone: the gradient scale^2 / (x + scale)^2 vanishes across real discontinuities.
+    """
+    if scale <= 0.0:
+        return x
+    return scale * x / (x + scale)
+
+
 def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 100.0,
-                      sigma: float = 0.005) -> dict[str, Tensor]:
+                      sigma: float = 0.005, length_scale: float = 0.0,
+                      direction_scale: float = 0.0) -> dict[str, Tensor]:
     """Neighbour-strand smoothness of length and direction.
 
     - Length: |L_i - mean of L over i's 4-neighbours| (metres), a discrete Laplacian of strand
@@ -153,6 +166,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         graph: neighbour pairs of the guides.
         back_weight: factor on the length term of guides in the back region.
         sigma: distance scale of the direction term, metres.
+        length_scale: :func:`robust` scale of the length residuals, metres (0: plain L1).
+        direction_scale: :func:`robust` scale of the 1 - cos residuals (0: plain).
 
     Returns:
         {"smooth_length": scalar (metres), "smooth_direction": scalar in [0, 2]}.
@@ -168,7 +183,7 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     deg = torch.zeros_like(length).index_add(0, i, ones).index_add(0, j, ones)
     nb_sum = torch.zeros_like(length).index_add(0, i, length[j]).index_add(0, j, length[i])
     has = deg > 0
-    lap = (length - nb_sum / deg.clamp_min(1.0)).abs()
+    lap = robust((length - nb_sum / deg.clamp_min(1.0)).abs(), length_scale)
     back = torch.zeros(n, dtype=torch.bool, device=points.device)
     back[i[graph.back]] = True
     w_len = torch.where(back, torch.full_like(lap, back_weight), torch.ones_like(lap))
@@ -181,7 +196,7 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         w = torch.exp(-d2min / (2.0 * sigma * sigma))
     tj = torch.gather(t[j], 1, nn[..., None].expand(-1, -1, 3))
     cos = (t[i] * tj).sum(-1)
-    smooth_direction = (w * (1.0 - cos)).sum() / w.sum().clamp_min(1e-9)
+    smooth_direction = (w * robust(1.0 - cos, direction_scale)).sum() / w.sum().clamp_min(1e-9)
     return {"smooth_length": smooth_length, "smooth_direction": smooth_direction}
 
 

@@ -138,7 +138,9 @@ class Stage2Model(nn.Module):
         losses["penetration"] = pen
         if cfg.switches.use_smoothness:
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
-            losses.update(smoothness_losses(canon[:, self.layout.render_index], self.layout.graph, back))
+            losses.update(smoothness_losses(canon[:, self.layout.render_index], self.layout.graph, back,
+                                            length_scale=cfg.smooth_length_scale,
+                                            direction_scale=cfg.smooth_direction_scale))
         if cfg.switches.use_pca_consistency:
             losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
         if scale > 0.0:
