@@ -133,16 +133,33 @@ def _merge(a: dict, b: dict) -> dict:
 
 
 def score(pred: Path, gt: Path, cache: Path) -> dict:
-    """Metrics of a strand file against the ground truth (cached next to the prediction)."""
-    from vid2haircut.evaluate.metrics import evaluate_strands
+    """Metrics of a strand file against the ground truth, with Chamfer_pts split by head region
+    (front / side / back), cached next to the prediction."""
+    from vid2haircut.evaluate.metrics import chamfer_by_region, evaluate_strands
     from vid2haircut.io.atomic import write_json
     from vid2haircut.io.strand_formats import load_strands
 
     if cache.is_file() and cache.stat().st_mtime >= pred.stat().st_mtime:
-        return json.loads(cache.read_text())
-    m = evaluate_strands(load_strands(pred), load_strands(gt), max_points=200_000)
+        m = json.loads(cache.read_text())
+        if "chamfer_pts_back" in m:
+            return m
+    p, g = load_strands(pred), load_strands(gt)
+    m = evaluate_strands(p, g, max_points=200_000)
+    m.update(chamfer_by_region(p, g, max_points=200_000))
     write_json(cache, m)
     return m
+
+
+def region_table(results: dict, seqs: list[str], variants: list[str]) -> str:
+    """Markdown: mean Chamfer_pts (1e-4 m^2) of each variant split into front / side / back parts."""
+    lines = ["| method | front | side | back | total |", "|---|---|---|---|---|"]
+    for v in variants:
+        ms = [results[(s, v)] for s in seqs if (s, v) in results]
+        if len(ms) != len(seqs):
+            continue
+        parts = [np.mean([m[f"chamfer_pts_{r}"] for m in ms]) * 1e4 for r in ("front", "side", "back")]
+        lines.append(f"| {LABELS[v]} | " + " | ".join(f"{x:.3f}" for x in parts) + f" | {sum(parts):.3f} |")
+    return "\n".join(lines)
 
 
 def table(results: dict, seqs: list[str], variants: list[str]) -> str:
@@ -207,7 +224,10 @@ def main(argv: list[str] | None = None) -> int:
                      results[(name, v)]["chamfer_angle"], secs)
     md = table(results, names, variants)
     timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants if v != "prior")
+    regions = region_table(results, names, variants)
     text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
+            f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
+            f"side 60-120 deg, back >= 120 deg; the keyframes turn up to ~64 deg):\n\n{regions}\n\n"
             f"Mean fit time per variant (this machine): {timing}\n")
     print(text)
     if args.out:

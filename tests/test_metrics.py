@@ -127,3 +127,20 @@ def test_errors_and_evaluate_files(tmp_path):
     on_disk = json.loads((tmp_path / "out" / "metrics.json").read_text())
     assert on_disk == rec and on_disk["pred_file"] == "pred.data" and on_disk["points_per_strand"] == 30
     assert on_disk["chamfer_pts"] == pytest.approx(2e-6, rel=1e-4) and on_disk["f1_2mm_20deg"] == 1.0
+
+
+def test_chamfer_by_region_credits_each_region_and_sums_to_the_total():
+    from vid2haircut.evaluate.metrics import chamfer_by_region
+
+    # one vertical strand in front (+z), one at the side (+x), one at the back (-z), 0.1 m out
+    t = np.linspace(0.0, -0.1, 20)
+    strand = lambda x, z: np.stack([np.full(20, x), t, np.full(20, z)], -1)  # noqa: E731
+    gt = StrandSet(np.stack([strand(0, 0.1), strand(0.1, 0), strand(0, -0.1)]).astype(np.float32))
+    moved = gt.points.copy()
+    moved[2] += np.float32([0.003, 0, 0])              # only the back strand is off, by 3 mm
+    pred = StrandSet(moved)
+    parts = chamfer_by_region(pred, gt, n_points=20)
+    total = evaluate_strands(pred, gt, n_points=20)["chamfer_pts"]
+    assert parts["chamfer_pts_front"] == 0.0 and parts["chamfer_pts_side"] == 0.0
+    assert parts["chamfer_pts_back"] == pytest.approx(2 * (0.003 ** 2) / 3, rel=1e-4)
+    assert sum(parts.values()) == pytest.approx(total, rel=1e-9)

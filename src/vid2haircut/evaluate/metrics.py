@@ -26,7 +26,8 @@ from vid2haircut.io.atomic import write_json
 from vid2haircut.io.strand_formats import load_strands
 from vid2haircut.strands import StrandSet
 
-__all__ = ["THRESHOLDS", "OrientedPoints", "oriented_points", "evaluate_strands", "evaluate_files"]
+__all__ = ["THRESHOLDS", "REGIONS", "OrientedPoints", "oriented_points", "evaluate_strands", "chamfer_by_region",
+           "evaluate_files"]
 
 #: (radius metres, angle degrees) pairs of the oriented-point precision / recall (HairGS).
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.002, 20.0), (0.003, 30.0), (0.004, 40.0))
@@ -107,6 +108,38 @@ def _directed(src: OrientedPoints, dst: OrientedPoints, dst_tree: cKDTree,
 
 def _tag(radius: float, angle: float) -> str:
     return f"{radius * 1000:g}mm_{angle:g}deg"
+
+
+#: azimuth bounds (degrees from the face direction +z about the vertical axis +y) of the regions
+#: of :func:`chamfer_by_region`: front |az| < 60, sides 60 <= |az| < 120, back |az| >= 120.
+REGIONS: tuple[tuple[str, float, float], ...] = (("front", 0.0, 60.0), ("side", 60.0, 120.0), ("back", 120.0, 181.0))
+
+
+def _region_of(points: np.ndarray) -> np.ndarray:
+    """(M,3) head-frame points -> (M,) index into :data:`REGIONS` by azimuth about +y from +z."""
+    az = np.degrees(np.abs(np.arctan2(points[:, 0], points[:, 2])))
+    out = np.zeros(len(points), np.int64)
+    for i, (_, lo, _hi) in enumerate(REGIONS):
+        out[az >= lo] = i
+    return out
+
+
+def chamfer_by_region(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_points: int = 200_000,
+                      seed: int = 0) -> dict:
+    """Chamfer_pts split into the parts of each head region (front / side / back, :data:`REGIONS`).
+
+    Each point's squared nearest distance (both directions, same sampling as
+    :func:`evaluate_strands`) is credited to the region of that point, so the parts add up to
+    ``chamfer_pts``: ``{"chamfer_pts_front": ..., "chamfer_pts_side": ..., "chamfer_pts_back": ...}``
+    (m^2). Both sets must be in the head's canonical frame (face towards +z, up +y).
+    """
+    p = oriented_points(pred, n_points, max_points, seed).points
+    g = oriented_points(gt, n_points, max_points, seed).points
+    d_pg = cKDTree(g).query(p)[0] ** 2
+    d_gp = cKDTree(p).query(g)[0] ** 2
+    rp, rg = _region_of(p), _region_of(g)
+    return {f"chamfer_pts_{name}": float(d_pg[rp == i].sum() / len(p) + d_gp[rg == i].sum() / len(g))
+            for i, (name, _, _) in enumerate(REGIONS)}
 
 
 def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_points: int = 200_000,
