@@ -12,11 +12,17 @@ then the fitting variants through the same file-level entry points as the pipeli
   the default Stage 1).
 
 Each result is scored against the ground truth (Chamfer_pts in m^2, Chamfer_angle in rad; see
-``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given).
+``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given),
+followed by the mean Chamfer_pts of each variant split by head region (front / side / back; the
+keyframes turn the head up to ~64 degrees, so the back is never seen). ``--sway-gain`` sets how
+strongly the hair lags the head (``SynthConfig.sway_gain``; the generator default is 0.012, the
+README table uses 0.03 so that the deformation has something to explain).
 Every stage's outputs are cached under ``--work``: a second run only redoes what is missing, so
 the benchmark can be run in pieces (``--sequences``, ``--variants``).
 
     .venv/bin/python benchmarks/quality.py --work results/benchmarks/quality --out results/benchmarks/quality.md
+    .venv/bin/python benchmarks/quality.py --sway-gain 0.03 --work results/benchmarks/quality_sway \
+        --out results/benchmarks/quality_sway.md        # the README table
     .venv/bin/python benchmarks/quality.py --quick        # 2 sequences, short schedules (smoke run)
 """
 
