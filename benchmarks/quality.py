@@ -8,8 +8,8 @@ then the fitting variants through the same file-level entry points as the pipeli
 - ``stage1``: single-view fit (Im2Haircut baseline; the default optimises Z from the prior's
   prediction, ``stage1_ft`` fine-tunes the prior network as published),
 - ``stage2``: the full method (6 keyframes), and the ablations ``no_deformation``,
-  ``no_smoothness``, ``no_visibility``, ``no_pca``, ``kf1``, ``kf3`` (Stage 2 always starts from
-  the default Stage 1).
+  ``no_smoothness``, ``no_visibility``, ``no_pca``, ``kf1``, ``kf3`` (these start from the default
+  Stage 1), and ``stage2_ft`` (the full method started from ``stage1_ft``; not in the default list).
 
 Each result is scored against the ground truth (Chamfer_pts in m^2, Chamfer_angle in rad; see
 ``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given),
@@ -46,7 +46,9 @@ STAGE2_VARIANTS = {
     "no_pca": {"switches": {"use_pca_consistency": False}},
     "kf1": {"n_keyframes": 1},
     "kf3": {"n_keyframes": 3},
+    "stage2_ft": {},
 }
+STAGE2_FROM = {"stage2_ft": "stage1_ft"}  # Stage 2 variants that start from another Stage 1 variant
 STAGE1_VARIANTS = {
     "stage1": {},
     # the published Im2Haircut recipe: fine-tune the prior network (AdamW 1e-4, wd 1e-3), penetration 0.3
@@ -58,7 +60,8 @@ LABELS = {"prior": "Prior prediction alone", "stage1": "Stage 1 (single view, Z 
           "stage1_ft": "Stage 1 (single view, prior net fine-tuned; Im2Haircut recipe)",
           "stage2": "**Stage 2 (Vid2Haircut, 6 keyframes)**", "no_deformation": "Stage 2 w/o deformation MLP",
           "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
-          "no_pca": "Stage 2 w/o PCA consistency", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes"}
+          "no_pca": "Stage 2 w/o PCA consistency", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes",
+          "stage2_ft": "Stage 2 (6 keyframes) started from the fine-tuned Stage 1"}
 SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
 
@@ -123,9 +126,10 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
             over = _merge(settings.get("stage1", {}), STAGE1_VARIANTS[name])
             run_stage1(*common, out, prior_dir=prior_dir, settings=over, progress=False)
         else:
-            s1 = work / "runs" / seq["subject"] / "stage1"
+            base = STAGE2_FROM.get(name, "stage1")
+            s1 = work / "runs" / seq["subject"] / base
             if not (s1 / "stage1.json").is_file():
-                run_variant(seq, "stage1", work, prior_dir, settings)
+                run_variant(seq, base, work, prior_dir, settings)
             over = _merge(settings.get("stage2", {}), STAGE2_VARIANTS[name])
             run_stage2(*common, s1, out, settings=over, progress=False)
     return out / "strands.npz", float(json.loads(rec.read_text())["fit_seconds"])
