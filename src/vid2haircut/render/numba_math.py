@@ -22,24 +22,21 @@ _LN2 = 0.6931471805599453
 _SQRT2 = 1.4142135623730951
 
 
-@intrinsic
-def _f64_from_bits(typingctx, x):
-    sig = types.float64(types.int64)
+def _bitcast(src, dst):
+    """A numba intrinsic reinterpreting the bits of a ``src`` value as ``dst`` (same width)."""
 
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
+    @intrinsic
+    def cast(typingctx, x):
+        def codegen(context, builder, signature, args):
+            return builder.bitcast(args[0], context.get_value_type(dst))
 
-    return sig, codegen
+        return dst(src), codegen
+
+    return cast
 
 
-@intrinsic
-def _bits_from_f64(typingctx, x):
-    sig = types.int64(types.float64)
-
-    def codegen(context, builder, signature, args):
-        return builder.bitcast(args[0], context.get_value_type(types.int64))
-
-    return sig, codegen
+_f64_from_bits = _bitcast(types.int64, types.float64)
+_bits_from_f64 = _bitcast(types.float64, types.int64)
 
 
 @njit(cache=True, inline="always")
