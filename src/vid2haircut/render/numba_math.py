@@ -39,26 +39,28 @@ _f64_from_bits = _bitcast(types.int64, types.float64)
 _bits_from_f64 = _bitcast(types.float64, types.int64)
 
 
+# Taylor series of exp(r) to degree 13 (truncation < 1e-17 for |r| <= ln(2) / 2), highest first
+_EXP_COEFFS = tuple(1.0 / math.factorial(n) for n in range(13, -1, -1))
+# 2 atanh(s) / (2 s) = sum s^(2n) / (2n + 1), n = 10 .. 0, as a polynomial in s^2
+_LOG_COEFFS = tuple(1.0 / (2 * n + 1) for n in range(10, -1, -1))
+
+
+@njit(cache=True, inline="always")
+def _horner(x, coeffs):
+    """sum c_i x^(n-i) for coefficients ``coeffs`` (highest power first), by Horner's rule."""
+    p = coeffs[0]
+    for c in coeffs[1:]:
+        p = p * x + c
+    return p
+
+
 @njit(cache=True, inline="always")
 def vexp(x):
     """exp(x) for x <= 0 (arguments below -700 are treated as -700)."""
     x = max(x, -700.0)
     k = math.floor(x * _LOG2E + 0.5)
     r = (x - k * _LN2_HI) - k * _LN2_LO  # |r| <= ln(2) / 2
-    p = 1.0 / 6227020800.0  # Taylor series of exp(r) to degree 13 (truncation < 1e-17)
-    p = p * r + 1.0 / 479001600.0
-    p = p * r + 1.0 / 39916800.0
-    p = p * r + 1.0 / 3628800.0
-    p = p * r + 1.0 / 362880.0
-    p = p * r + 1.0 / 40320.0
-    p = p * r + 1.0 / 5040.0
-    p = p * r + 1.0 / 720.0
-    p = p * r + 1.0 / 120.0
-    p = p * r + 1.0 / 24.0
-    p = p * r + 1.0 / 6.0
-    p = p * r + 0.5
-    p = p * r + 1.0
-    p = p * r + 1.0
+    p = _horner(r, _EXP_COEFFS)
     return p * _f64_from_bits((np.int64(k) + 1023) << 52)
 
 
@@ -72,16 +74,5 @@ def vlog(y):
     m = m * 0.5 if big else m  # now in [sqrt(2) / 2, sqrt(2)]
     e = e + 1 if big else e
     s = (m - 1.0) / (m + 1.0)  # log m = 2 atanh(s), |s| <= 0.1716
-    s2 = s * s
-    p = 1.0 / 21.0
-    p = p * s2 + 1.0 / 19.0
-    p = p * s2 + 1.0 / 17.0
-    p = p * s2 + 1.0 / 15.0
-    p = p * s2 + 1.0 / 13.0
-    p = p * s2 + 1.0 / 11.0
-    p = p * s2 + 1.0 / 9.0
-    p = p * s2 + 1.0 / 7.0
-    p = p * s2 + 1.0 / 5.0
-    p = p * s2 + 1.0 / 3.0
-    p = p * s2 + 1.0
+    p = _horner(s * s, _LOG_COEFFS)
     return 2.0 * s * p + e * _LN2
