@@ -145,7 +145,7 @@ def _merge(a: dict, b: dict) -> dict:
 def score(pred: Path, gt: Path, cache: Path) -> dict:
     """Metrics of a strand file against the ground truth, with Chamfer_pts split by head region
     (front / side / back), cached next to the prediction."""
-    from vid2haircut.evaluate.metrics import chamfer_by_region, evaluate_strands
+    from vid2haircut.evaluate.metrics import evaluate_strands
     from vid2haircut.io.atomic import write_json
     from vid2haircut.io.strand_formats import load_strands
 
@@ -153,9 +153,7 @@ def score(pred: Path, gt: Path, cache: Path) -> dict:
         m = json.loads(cache.read_text())
         if "chamfer_pts_back" in m:
             return m
-    p, g = load_strands(pred), load_strands(gt)
-    m = evaluate_strands(p, g, max_points=200_000)
-    m.update(chamfer_by_region(p, g, max_points=200_000))
+    m = evaluate_strands(load_strands(pred), load_strands(gt), max_points=200_000, by_region=True)
     write_json(cache, m)
     return m
 

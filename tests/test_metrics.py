@@ -130,8 +130,6 @@ def test_errors_and_evaluate_files(tmp_path):
 
 
 def test_chamfer_by_region_credits_each_region_and_sums_to_the_total():
-    from vid2haircut.evaluate.metrics import chamfer_by_region
-
     # one vertical strand in front (+z), one at the side (+x), one at the back (-z), 0.1 m out
     t = np.linspace(0.0, -0.1, 20)
     strand = lambda x, z: np.stack([np.full(20, x), t, np.full(20, z)], -1)  # noqa: E731
@@ -139,7 +137,8 @@ def test_chamfer_by_region_credits_each_region_and_sums_to_the_total():
     moved = gt.points.copy()
     moved[2] += np.float32([0.003, 0, 0])              # only the back strand is off, by 3 mm
     pred = StrandSet(moved)
-    parts = chamfer_by_region(pred, gt, n_points=20)
+    m = evaluate_strands(pred, gt, n_points=20, by_region=True)
+    parts = {k: m[k] for k in ("chamfer_pts_front", "chamfer_pts_side", "chamfer_pts_back")}
     total = evaluate_strands(pred, gt, n_points=20)["chamfer_pts"]
     assert parts["chamfer_pts_front"] == 0.0 and parts["chamfer_pts_side"] == 0.0
     assert parts["chamfer_pts_back"] == pytest.approx(2 * (0.003 ** 2) / 3, rel=1e-4)

@@ -26,8 +26,7 @@ from vid2haircut.io.atomic import write_json
 from vid2haircut.io.strand_formats import load_strands
 from vid2haircut.strands import StrandSet
 
-__all__ = ["THRESHOLDS", "REGIONS", "OrientedPoints", "oriented_points", "evaluate_strands", "chamfer_by_region",
-           "evaluate_files"]
+__all__ = ["THRESHOLDS", "REGIONS", "OrientedPoints", "oriented_points", "evaluate_strands", "evaluate_files"]
 
 #: (radius metres, angle degrees) pairs of the oriented-point precision / recall (HairGS).
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.002, 20.0), (0.003, 30.0), (0.004, 40.0))
@@ -69,11 +68,11 @@ def _abs_cos(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _directed(src: OrientedPoints, dst: OrientedPoints, dst_tree: cKDTree,
-              chunk: int = 4096) -> tuple[float, float, np.ndarray]:
+              chunk: int = 4096) -> tuple[np.ndarray, float, np.ndarray]:
     """One direction src -> dst.
 
     Returns:
-        mean squared nearest distance, mean nearest-neighbour angle (rad), and a (len(THRESHOLDS),)
+        (M,) squared nearest distance of every src point, mean nearest-neighbour angle (rad), and a (len(THRESHOLDS),)
         array with the fraction of src points matched at each (radius, angle) threshold.
     """
     radii = np.array([r for r, _ in THRESHOLDS])
@@ -103,7 +102,7 @@ def _directed(src: OrientedPoints, dst: OrientedPoints, dst_tree: cKDTree,
         for j, (r, c) in enumerate(zip(radii, cos_min)):
             hit = np.logical_or.reduceat((dist <= r) & (cos >= c - 1e-12), first)
             matched[q, j] |= hit & todo[q, j]
-    return float(sq.mean()), float(angle.mean()), matched.mean(0)
+    return sq, float(angle.mean()), matched.mean(0)
 
 
 def _tag(radius: float, angle: float) -> str:
@@ -111,7 +110,7 @@ def _tag(radius: float, angle: float) -> str:
 
 
 #: azimuth bounds (degrees from the face direction +z about the vertical axis +y) of the regions
-#: of :func:`chamfer_by_region`: front |az| < 60, sides 60 <= |az| < 120, back |az| >= 120.
+#: of ``evaluate_strands(..., by_region=True)``: front |az| < 60, sides 60 <= |az| < 120, back |az| >= 120.
 REGIONS: tuple[tuple[str, float, float], ...] = (("front", 0.0, 60.0), ("side", 60.0, 120.0), ("back", 120.0, 181.0))
 
 
@@ -124,32 +123,18 @@ def _region_of(points: np.ndarray) -> np.ndarray:
     return out
 
 
-def chamfer_by_region(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_points: int = 200_000,
-                      seed: int = 0) -> dict:
-    """Chamfer_pts split into the parts of each head region (front / side / back, :data:`REGIONS`).
-
-    Each point's squared nearest distance (both directions, same sampling as
-    :func:`evaluate_strands`) is credited to the region of that point, so the parts add up to
-    ``chamfer_pts``: ``{"chamfer_pts_front": ..., "chamfer_pts_side": ..., "chamfer_pts_back": ...}``
-    (m^2). Both sets must be in the head's canonical frame (face towards +z, up +y).
-    """
-    p = oriented_points(pred, n_points, max_points, seed).points
-    g = oriented_points(gt, n_points, max_points, seed).points
-    d_pg = cKDTree(g).query(p)[0] ** 2
-    d_gp = cKDTree(p).query(g)[0] ** 2
-    rp, rg = _region_of(p), _region_of(g)
-    return {f"chamfer_pts_{name}": float(d_pg[rp == i].sum() / len(p) + d_gp[rg == i].sum() / len(g))
-            for i, (name, _, _) in enumerate(REGIONS)}
-
-
 def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_points: int = 200_000,
-                     seed: int = 0) -> dict:
+                     seed: int = 0, by_region: bool = False) -> dict:
     """Score predicted strands against ground-truth strands (both in the same frame, metres).
 
     Args:
         pred, gt: strand sets (any point counts; both are resampled to ``n_points``).
         n_points: points per strand after resampling.
         max_points: cap on each oriented point set (random subset, ``seed``).
+        by_region: also split Chamfer_pts by head region (:data:`REGIONS`): each point's squared
+            nearest distance is credited to the region of that point, so ``chamfer_pts_front``,
+            ``chamfer_pts_side`` and ``chamfer_pts_back`` add up to ``chamfer_pts`` (both sets in
+            the head's canonical frame: face towards +z, up +y).
 
     Returns:
         dict of floats: ``chamfer_pts`` (m^2), ``chamfer_pts_pred_to_gt``, ``chamfer_pts_gt_to_pred``,
@@ -166,8 +151,9 @@ def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_po
                          f"ground truth in {gt.head_model!r}")
     p = oriented_points(pred, n_points, max_points, seed)
     g = oriented_points(gt, n_points, max_points, seed)
-    sq_pg, ang_pg, prec = _directed(p, g, cKDTree(g.points))
-    sq_gp, ang_gp, rec = _directed(g, p, cKDTree(p.points))
+    d_pg, ang_pg, prec = _directed(p, g, cKDTree(g.points))
+    d_gp, ang_gp, rec = _directed(g, p, cKDTree(p.points))
+    sq_pg, sq_gp = float(d_pg.mean()), float(d_gp.mean())
     out = {
         "chamfer_pts": sq_pg + sq_gp, "chamfer_pts_pred_to_gt": sq_pg, "chamfer_pts_gt_to_pred": sq_gp,
         "chamfer_angle": 0.5 * (ang_pg + ang_gp), "chamfer_angle_pred_to_gt": ang_pg,
@@ -180,6 +166,10 @@ def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_po
         out[f"precision_{tag}"] = float(pr)
         out[f"recall_{tag}"] = float(rc)
         out[f"f1_{tag}"] = float(2 * pr * rc / (pr + rc)) if pr + rc > 0 else 0.0
+    if by_region:
+        rp, rg = _region_of(p.points), _region_of(g.points)
+        for i, (name, _, _) in enumerate(REGIONS):
+            out[f"chamfer_pts_{name}"] = float(d_pg[rp == i].sum() / len(d_pg) + d_gp[rg == i].sum() / len(d_gp))
     return out
 
 
