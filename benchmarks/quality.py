@@ -112,11 +112,13 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
     return path
 
 
-def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dict) -> tuple[Path, float]:
-    """Run one variant (cached) -> (strands.npz, fit seconds)."""
+def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dict,
+                seed: int = 0) -> tuple[Path, float]:
+    """Run one variant (cached) -> (strands.npz, fit seconds); Stage 2 variants with ``seed`` != 0
+    run under ``<variant>_seed<seed>`` with ``Stage2Config.seed`` set (same Stage 1 start)."""
     from vid2haircut.fit.pipeline import run_stage1, run_stage2
 
-    out = work / "runs" / seq["subject"] / name
+    out = work / "runs" / seq["subject"] / (name if seed == 0 else f"{name}_seed{seed}")
     common = (seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"])
     if name == "prior":
         return prior_strands(seq, prior_dir, out), 0.0
@@ -131,6 +133,8 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
             if not (s1 / "stage1.json").is_file():
                 run_variant(seq, base, work, prior_dir, settings)
             over = _merge(settings.get("stage2", {}), STAGE2_VARIANTS[name])
+            if seed:
+                over["seed"] = seed
             run_stage2(*common, s1, out, settings=over, progress=False)
     return out / "strands.npz", float(json.loads(rec.read_text())["fit_seconds"])
 
@@ -170,6 +174,28 @@ def region_table(results: dict, seqs: list[str], variants: list[str]) -> str:
     return "\n".join(lines)
 
 
+def seed_table(per_seed: dict, seqs: list[str], variants: list[str], seeds: list[int]) -> str:
+    """Markdown: mean Chamfer_pts (1e-4 m^2) over the sequences of each Stage 2 variant for every seed,
+    and in how many seeds it is worse than the full method of the same seed."""
+    lines = ["Mean Chamfer_pts (1e-4 m^2) per Stage 2 seed (the deformation field, frame codes and dense "
+             "roots are drawn from it):", "",
+             "| method | " + " | ".join(f"seed {s}" for s in seeds) + " | worse than full |",
+             "|" + "---|" * (len(seeds) + 2)]
+    means = {}
+    for v in variants:
+        for sd in seeds:
+            vals = [per_seed[(s, v, sd)]["chamfer_pts"] for s in seqs if (s, v, sd) in per_seed]
+            if len(vals) == len(seqs):
+                means[(v, sd)] = float(np.mean(vals)) * 1e4
+    for v in variants:
+        if not all((v, sd) in means for sd in seeds):
+            continue
+        worse = "-" if v == "stage2" or not all(("stage2", sd) in means for sd in seeds) else \
+            f"{sum(means[(v, sd)] > means[('stage2', sd)] for sd in seeds)} of {len(seeds)}"
+        lines.append(f"| {LABELS[v]} | " + " | ".join(f"{means[(v, sd)]:.3f}" for sd in seeds) + f" | {worse} |")
+    return "\n".join(lines)
+
+
 def table(results: dict, seqs: list[str], variants: list[str]) -> str:
     """Markdown: one row per variant; Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence and mean."""
     head = "| method | " + " | ".join(seqs) + " | **mean CD_pts (1e-4 m^2)** | **mean CD_angle (rad)** |"
@@ -203,6 +229,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sway-gain", type=float, default=SWAY_GAIN,
                    help="hair sway gain of the synthesised sequences (SynthConfig.sway_gain)")
     p.add_argument("--quick", action="store_true", help="2 sequences, short schedules")
+    p.add_argument("--stage2-seeds", default="0",
+                   help="comma-separated Stage 2 seeds; each Stage 2 variant is run once per seed and the "
+                        "table shows the mean (the seed spread is listed below it)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     import torch
@@ -217,7 +246,8 @@ def main(argv: list[str] | None = None) -> int:
     pool = {f"{f}_{s}": (f, s) for f, s in SEQUENCES}
     names = args.sequences.split(",") if args.sequences else list(pool)[: 2 if args.quick else 4]
     variants = args.variants.split(",")
-    results, times = {}, {}
+    seeds = [int(x) for x in args.stage2_seeds.split(",")]
+    results, times, per_seed = {}, {}, {}
     for name in names:
         if name not in pool:
             raise SystemExit(f"unknown sequence {name!r}; known: {sorted(pool)}")
@@ -225,11 +255,16 @@ def main(argv: list[str] | None = None) -> int:
         seq = prepare(work, *pool[name], args.frames, args.sway_gain)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
         for v in variants:
-            strands, secs = run_variant(seq, v, work, prior_dir, settings)
-            results[(name, v)] = score(strands, seq["gt"], strands.with_name("metrics.json"))
-            times[(name, v)] = secs
-            log.info("%s %s: CD_pts %.3e CD_angle %.4f (%.0fs)", name, v, results[(name, v)]["chamfer_pts"],
-                     results[(name, v)]["chamfer_angle"], secs)
+            ms, secs = [], []
+            for sd in (seeds if v in STAGE2_VARIANTS else [0]):
+                strands, sec = run_variant(seq, v, work, prior_dir, settings, sd)
+                ms.append(score(strands, seq["gt"], strands.with_name("metrics.json")))
+                per_seed[(name, v, sd)] = ms[-1]
+                secs.append(sec)
+                log.info("%s %s seed %d: CD_pts %.3e CD_angle %.4f (%.0fs)", name, v, sd, ms[-1]["chamfer_pts"],
+                         ms[-1]["chamfer_angle"], sec)
+            results[(name, v)] = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
+            times[(name, v)] = float(np.mean(secs))
     md = table(results, names, variants)
     timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants if v != "prior")
     regions = region_table(results, names, variants)
@@ -237,6 +272,8 @@ def main(argv: list[str] | None = None) -> int:
             f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
             f"side 60-120 deg, back >= 120 deg; the keyframes turn up to ~64 deg):\n\n{regions}\n\n"
             f"Mean fit time per variant (this machine): {timing}\n")
+    if len(seeds) > 1:
+        text += "\n" + seed_table(per_seed, names, [v for v in variants if v in STAGE2_VARIANTS], seeds) + "\n"
     print(text)
     if args.out:
         from vid2haircut.io.atomic import write_text

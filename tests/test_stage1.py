@@ -115,3 +115,28 @@ def test_missing_inputs_are_named(toy, tmp_path):
         run_stage1(files["dataset_root"], "toy", files["keyframes"], files["head"], files["targets"], tmp_path / "o",
                    settings=FAST, progress=False)
     assert not (tmp_path / "o" / "strands.npz").exists()
+
+
+def test_length_step_gain_slows_short_strands(toy):
+    from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, length_step_gain
+
+    z0, m0 = initial_hairmap(toy.data, toy.codec, None, 16)
+    layout = guide_layout(toy.data.head, m0, 0.5, toy.codec.n_points, 16)
+    pts = decode_layout(z0, layout, toy.codec)
+    length = (pts[:, 1:] - pts[:, :-1]).norm(dim=-1).sum(-1)                 # (N,) metres
+    ref = float(length.max()) * 2.0
+    gain = length_step_gain(z0, layout, toy.codec, ref, floor=0.0)
+    assert torch.allclose(gain.view(-1)[layout.texel_index], length / ref, rtol=1e-5)
+    assert torch.equal(length_step_gain(z0, layout, toy.codec, 0.0), torch.ones_like(gain))   # off
+    floor = length_step_gain(z0, layout, toy.codec, 1e3, floor=0.2)
+    assert torch.allclose(floor.view(-1)[layout.texel_index], torch.full_like(length, 0.2))
+    assert float(floor.view(-1)[~layout.hair.view(-1)].min()) == 1.0          # texels without a guide
+    # one Adam step moves each texel's coefficients in proportion to its gain
+    zm = ZMap(z0, toy.codec.scales[: z0.shape[0]], 0.0, gain)
+    opt = torch.optim.Adam(zm.parameters(), lr=0.1)
+    (zm() * torch.randn_like(z0)).sum().backward()
+    opt.step()
+    moved = (zm() - z0).abs()[0].view(-1)[layout.texel_index]
+    assert torch.allclose(moved, 0.1 * length / ref, rtol=1e-3)
+    with pytest.raises(ValueError, match="texel_gain shape"):
+        ZMap(z0, toy.codec.scales[: z0.shape[0]], 0.0, gain[:4])

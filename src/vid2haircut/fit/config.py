@@ -107,6 +107,10 @@ class Stage1Config:
     """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
     z_optimizer: str = "shared_adam"
     """Optimiser of Z: "shared_adam" (:mod:`vid2haircut.fit.optim`) or "adam"."""
+    length_step_ref: float = 0.0
+    """Strands shorter than this (metres, at the start) take proportionally smaller Z steps
+    (:func:`vid2haircut.fit.scene.length_step_gain`; 0 = off): a whitened step moves a 4 cm strand
+    as many millimetres as a 40 cm one."""
     map_res: int = 32
     """Hair map resolution R when there is no prior (with a prior: the network's)."""
     mask_threshold: float = 0.5
@@ -144,6 +148,10 @@ class Stage2Config:
     """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
     z_optimizer: str = "shared_adam"
     """Optimiser of Z: "shared_adam" (:mod:`vid2haircut.fit.optim`) or "adam"."""
+    length_step_ref: float = 0.0
+    """Strands shorter than this (metres, at the start) take proportionally smaller Z steps
+    (:func:`vid2haircut.fit.scene.length_step_gain`; 0 = off): a whitened step moves a 4 cm strand
+    as many millimetres as a 40 cm one."""
     lr_mlp: float = 1.0e-2
     """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2)."""
     lr_codes: float = 1.0e-3

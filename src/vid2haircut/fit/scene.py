@@ -20,7 +20,7 @@ from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "ZMap", "z_optimizer"]
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "ZMap", "length_step_gain", "z_optimizer"]
 
 
 class GuideLayout(NamedTuple):
@@ -100,7 +100,7 @@ def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, 
 
 
 class ZMap(nn.Module):
-    """A coefficient map as an offset from its start: ``z = z0 + gain * delta`` (delta optimised).
+    """A coefficient map as an offset from its start: ``z = z0 + gain * texel_gain * delta`` (delta optimised).
 
     ``gain_k = (s_k / s_0) ** power`` with ``s_k`` the codec's per-component standard deviations
     (decreasing with k). Adam moves every parameter by about its learning rate per step whatever
@@ -108,21 +108,48 @@ class ZMap(nn.Module):
     components as fast as the coarse ones and make strands wiggle; the gain slows the fine ones
     down (power 0: plain whitened coefficients; power 1: equal steps in metres).
 
+    ``texel_gain`` (R,R) scales the steps of each texel (see :func:`length_step_gain`): a step of
+    one whitened unit moves a strand by the same metres whether it is 4 cm or 40 cm long, so short
+    hair would be moved proportionally much faster than long hair.
+
     Args:
         z0: (K,R,R) start map. scales: (K,) codec scales. power: see above.
+        texel_gain: optional (R,R) per-texel step factor (default 1).
     """
 
-    def __init__(self, z0: Tensor, scales: Tensor, power: float) -> None:
+    def __init__(self, z0: Tensor, scales: Tensor, power: float, texel_gain: Tensor | None = None) -> None:
         super().__init__()
         s = scales.detach().to(z0)
         gain = (s / s[0]).clamp_min(1e-12) ** float(power)
         self.register_buffer("z0", z0.detach().clone())
-        self.register_buffer("gain", gain[:, None, None])
+        g = gain[:, None, None]
+        if texel_gain is not None:
+            if texel_gain.shape != z0.shape[1:]:
+                raise ValueError(f"ZMap: texel_gain shape {tuple(texel_gain.shape)} != map {tuple(z0.shape[1:])}")
+            g = g * texel_gain.detach().to(z0)[None]
+        self.register_buffer("gain", g)
         self.delta = nn.Parameter(torch.zeros_like(z0))
 
     def forward(self) -> Tensor:
         """(K,R,R) current map."""
         return self.z0 + self.gain * self.delta
+
+
+@torch.no_grad()
+def length_step_gain(z: Tensor, layout: GuideLayout, codec: StrandCodec, ref_length: float,
+                     floor: float = 0.1) -> Tensor:
+    """Per-texel step factor ``clamp(L / ref_length, floor, 1)`` of a (K,R,R) map -> (R,R).
+
+    L is the length (metres) of the texel's guide decoded from ``z``; texels without a guide get 1.
+    ``ref_length <= 0`` gives all ones (no scaling).
+    """
+    out = torch.ones(z.shape[1:], dtype=z.dtype, device=z.device)
+    if ref_length <= 0:
+        return out
+    pts = decode_layout(z, layout, codec)
+    length = (pts[:, 1:] - pts[:, :-1]).norm(dim=-1).sum(-1)
+    out.view(-1)[layout.texel_index] = (length / ref_length).clamp(floor, 1.0)
+    return out
 
 
 def z_optimizer(kind: str, groups: list[dict]) -> torch.optim.Optimizer:

@@ -31,7 +31,8 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage1Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.losses import penetration_loss
-from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames, z_optimizer
+from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
+                                   z_optimizer)
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.prior.codec import StrandCodec, component_mask
 from vid2haircut.render import StrandRender
@@ -114,11 +115,12 @@ class Stage1Model(nn.Module):
             if x is None:
                 raise ValueError("Stage1Model: a prior net needs its input x")
             self.register_buffer("x", x)
-        else:
-            self.zmap = ZMap(z_init, codec.scales[: z_init.shape[0]], cfg.lr_gain_power)
         self.register_buffer("mask", mask.detach().clone())
         dev = mask.device
         self.layout = guide_layout(data.head, mask, cfg.mask_threshold, codec.n_points, cfg.render.n_points, dev)
+        if net is None:
+            tg = length_step_gain(z_init, self.layout, codec, cfg.length_step_ref)
+            self.zmap = ZMap(z_init, codec.scales[: z_init.shape[0]], cfg.lr_gain_power, tg)
         self.frames = torch.zeros(1, dtype=torch.long, device=dev)
         self.last_render: StrandRender | None = None
 

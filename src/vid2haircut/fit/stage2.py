@@ -26,7 +26,8 @@ from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
 from vid2haircut.fit.losses import motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses
-from vid2haircut.fit.scene import ZMap, decode_layout, guide_layout, image_losses, render_frames, z_optimizer
+from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
+                                   z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.fit.visibility import VisibilityGate, texel_visible_fraction
@@ -51,9 +52,10 @@ class Stage2Model(nn.Module):
         super().__init__()
         self.data, self.codec, self.cfg = data, codec, cfg
         dev = z_init.device
-        self.zmap = ZMap(z_init, codec.scales[: z_init.shape[0]].to(dev), cfg.lr_gain_power)
         self.register_buffer("mask", mask.detach().clone())
         self.layout = guide_layout(data.head, mask, cfg.mask_threshold, codec.n_points, cfg.render.n_points, dev)
+        tg = length_step_gain(z_init, self.layout, codec, cfg.length_step_ref)
+        self.zmap = ZMap(z_init, codec.scales[: z_init.shape[0]].to(dev), cfg.lr_gain_power, tg)
         n = int(self.layout.texel_index.numel())
         dcfg = DeformConfig(max_offset=cfg.max_offset, code_init_std=cfg.code_init_std)
         self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
