@@ -17,6 +17,10 @@ followed by the mean Chamfer_pts of each variant split by head region (front / s
 keyframes turn the head up to ~64 degrees, so the back is never seen). ``--sway-gain`` sets how
 strongly the hair lags the head (``SynthConfig.sway_gain``; the generator default is 0.012, the
 README table uses 0.03 so that the deformation has something to explain).
+``--stage2-seeds 0,1`` runs the full method and its four switch ablations once per Stage 2 seed
+(deformation field, frame codes and dense roots; Stage 1 is shared) and reports their mean, plus a
+table of the per-seed means and in how many seeds each ablation is worse than the full method:
+the ablations' effects are of the size of the seed-to-seed spread.
 Every stage's outputs are cached under ``--work``: a second run only redoes what is missing, so
 the benchmark can be run in pieces (``--sequences``, ``--variants``).
 
