@@ -69,6 +69,9 @@ def test_penetration_counts_only_inside():
     outside = torch.tensor([[0.0, 0.0, 0.2]])
     assert float(penetration_loss(outside, sdf)) == 0.0
     assert float(penetration_loss(torch.cat([inside, outside]), sdf)) == pytest.approx(0.025)
+    # a margin tolerates that depth: 5 cm inside with a 2 cm margin counts 3 cm; 1 cm inside counts 0
+    assert float(penetration_loss(torch.cat([inside, outside]), sdf, margin=0.02)) == pytest.approx(0.015)
+    assert float(penetration_loss(torch.tensor([[0.0, 0.0, 0.09]]), sdf, margin=0.02)) == 0.0
 
 
 def test_texel_graph_and_smoothness():

@@ -113,6 +113,9 @@ class Stage1Config:
     as many millimetres as a 40 cm one. Measured on ``benchmarks/quality.py`` (6 sequences): 0.15
     lowers Stage 1's Chamfer_pts on the short hairstyle from 0.136 to 0.076 and on the bangs from
     0.294 to 0.234 (1e-4 m^2), long hair is unchanged."""
+    penetration_margin: float = 0.0
+    """Depth (metres) inside the fitted head surface that the penetration term tolerates
+    (:func:`vid2haircut.fit.losses.penetration_loss`; 0 = none)."""
     map_res: int = 32
     """Hair map resolution R when there is no prior (with a prior: the network's)."""
     mask_threshold: float = 0.5
@@ -153,6 +156,9 @@ class Stage2Config:
     length_step_ref: float = 0.15
     """As :attr:`Stage1Config.length_step_ref` (Stage 2 on the short hairstyle: 0.164 -> 0.096,
     bangs 0.238 -> 0.190)."""
+    penetration_margin: float = 0.0
+    """Depth (metres) inside the fitted head surface that the penetration term tolerates
+    (:func:`vid2haircut.fit.losses.penetration_loss`; 0 = none)."""
     lr_mlp: float = 1.0e-2
     """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2)."""
     lr_codes: float = 1.0e-3

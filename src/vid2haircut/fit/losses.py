@@ -96,9 +96,13 @@ def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, targ
     return torch.stack(terms).mean() if terms else pred_depth.sum() * 0.0
 
 
-def penetration_loss(points: Tensor, sdf: Callable[[Tensor], Tensor]) -> Tensor:
-    """mean(relu(-sdf(points))). points: (...,3) canonical head frame, metres -> scalar."""
-    return torch.relu(-sdf(points)).mean()
+def penetration_loss(points: Tensor, sdf: Callable[[Tensor], Tensor], margin: float = 0.0) -> Tensor:
+    """mean(relu(-sdf(points) - margin)). points: (...,3) canonical head frame, metres -> scalar.
+
+    ``margin`` (metres) tolerates points that far inside the head surface (for a fitted head whose
+    pose is off by a millimetre or two, hair lying on the true scalp reads as slightly inside).
+    """
+    return torch.relu(-sdf(points) - margin).mean()
 
 
 class TexelGraph(NamedTuple):

@@ -153,7 +153,7 @@ class Stage1Model(nn.Module):
         out = render_frames(render_pts[None], self.data, self.frames, self.cfg.render)
         self.last_render = out
         losses = image_losses(out, self.data, self.frames)
-        losses["penetration"] = penetration_loss(pts, self.data.head.sdf)
+        losses["penetration"] = penetration_loss(pts, self.data.head.sdf, self.cfg.penetration_margin)
         return losses
 
     @torch.no_grad()

@@ -134,9 +134,9 @@ class Stage2Model(nn.Module):
             self.seen[frames] = texel_visible_fraction(out.visibility).to(self.seen.dtype)
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames)
-        pen = penetration_loss(canon, self.data.head.sdf)
+        pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
         if scale > 0.0:
-            pen = pen + penetration_loss(moved, self.data.head.sdf)
+            pen = pen + penetration_loss(moved, self.data.head.sdf, self.cfg.penetration_margin)
         losses["penetration"] = pen
         if cfg.switches.use_smoothness:
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
