@@ -4,6 +4,8 @@ For each (family, seed) of a small fixed set (seeds >= 1000, not used to train t
 motion on) it synthesises the sequence, runs the front stages (keyframes, head fit, targets) and
 then the fitting variants through the same file-level entry points as the pipeline:
 
+- ``oracle``: the ground truth itself encoded into the hair map (nearest strand per texel, same
+  dense decoding as the fits): the floor of the representation, not a method,
 - ``prior``: the prior network's prediction on the reference keyframe (no optimisation),
 - ``stage1``: single-view fit (Im2Haircut baseline; the default optimises Z from the prior's
   prediction, ``stage1_ft`` fine-tunes the prior network as published),
@@ -61,7 +63,8 @@ STAGE1_VARIANTS = {
 }
 DEFAULT_VARIANTS = ["prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness", "no_visibility",
                     "no_pca", "kf1", "kf3"]
-LABELS = {"prior": "Prior prediction alone", "stage1": "Stage 1 (single view, Z optimised; default)",
+LABELS = {"oracle": "Ground truth encoded in the hair map (representation floor)",
+          "prior": "Prior prediction alone", "stage1": "Stage 1 (single view, Z optimised; default)",
           "stage1_ft": "Stage 1 (single view, prior net fine-tuned; Im2Haircut recipe)",
           "stage2": "**Stage 2 (Vid2Haircut, 6 keyframes)**", "no_deformation": "Stage 2 w/o deformation MLP",
           "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
@@ -117,6 +120,25 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
     return path
 
 
+def oracle_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
+    """Dense strands of the ground truth encoded into the hair map (cached): each texel holds the
+    codec coefficients of its nearest ground-truth strand, decoded like every fit's output."""
+    from vid2haircut.fit.data import load_fit_data
+    from vid2haircut.fit.outputs import dense_strands
+    from vid2haircut.io.strand_formats import load_strands, save_strands
+    from vid2haircut.prior.hairmap import encode_strands
+    from vid2haircut.prior.model import load_prior
+
+    path = out / "strands.npz"
+    if not path.is_file():
+        data = load_fit_data(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"],
+                             n_keyframes=1, occlude_head=False)
+        _, codec, _ = load_prior(prior_dir)
+        hm = encode_strands(load_strands(seq["gt"]), data.head, codec, res=32)
+        save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model))
+    return path
+
+
 def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dict,
                 seed: int = 0) -> tuple[Path, float]:
     """Run one variant (cached) -> (strands.npz, fit seconds); Stage 2 variants with ``seed`` != 0
@@ -127,6 +149,8 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
     common = (seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"])
     if name == "prior":
         return prior_strands(seq, prior_dir, out), 0.0
+    if name == "oracle":
+        return oracle_strands(seq, prior_dir, out), 0.0
     rec = out / ("stage1.json" if name in STAGE1_VARIANTS else "stage2.json")
     if not rec.is_file():
         if name in STAGE1_VARIANTS:
@@ -272,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
             results[(name, v)] = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
             times[(name, v)] = float(np.mean(secs))
     md = table(results, names, variants)
-    timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants if v != "prior")
+    timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants if v not in ("prior", "oracle"))
     regions = region_table(results, names, variants)
     text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
             f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
