@@ -70,13 +70,15 @@ LABELS = {"oracle": "Ground truth encoded in the hair map (representation floor)
           "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
           "no_pca": "Stage 2 w/o PCA consistency", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes",
           "stage2_ft": "Stage 2 (6 keyframes) started from the fine-tuned Stage 1"}
+HEAD_FILL = 0.6  # fraction of the image height the head (crown to neck) fills (the generator's default)
 SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
 
 log = logging.getLogger("quality")
 
 
-def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN) -> dict:
+def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN,
+            head_fill: float = HEAD_FILL) -> dict:
     """Synthesise one sequence and run the front stages (cached)."""
     from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
     from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
@@ -89,9 +91,13 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
         have = json.loads(meta.read_text())["motion"].get("sway_gain")
         if have is None or abs(have - sway_gain) > 1e-12:
             raise SystemExit(f"{meta}: cached sequence has sway_gain {have}, not {sway_gain}; use another --work")
+        fill = json.loads(meta.read_text())["config"].get("head_fill")
+        if fill is None or abs(fill - head_fill) > 1e-12:
+            raise SystemExit(f"{meta}: cached sequence has head_fill {fill}, not {head_fill}; use another --work")
     else:
         synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames,
-                                                               sway_gain=sway_gain), overwrite=True)
+                                                               sway_gain=sway_gain, head_fill=head_fill),
+                            overwrite=True)
     if not (front / "keyframes.json").is_file():
         run_keyframes(root, subject, "HAIR", front)
     if not (front / "head.npz").is_file():
@@ -257,6 +263,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=None, help="torch threads")
     p.add_argument("--sway-gain", type=float, default=SWAY_GAIN,
                    help="hair sway gain of the synthesised sequences (SynthConfig.sway_gain)")
+    p.add_argument("--head-fill", type=float, default=HEAD_FILL,
+                   help="fraction of the image height that the head fills (SynthConfig.head_fill; smaller "
+                        "shows more of long hair, which runs off the bottom of the image at the default)")
     p.add_argument("--quick", action="store_true", help="2 sequences, short schedules")
     p.add_argument("--stage2-seeds", default="0",
                    help="comma-separated Stage 2 seeds; the full method and its four switch ablations are "
@@ -282,7 +291,7 @@ def main(argv: list[str] | None = None) -> int:
         if name not in pool:
             raise SystemExit(f"unknown sequence {name!r}; known: {sorted(pool)}")
         t0 = time.perf_counter()
-        seq = prepare(work, *pool[name], args.frames, args.sway_gain)
+        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
         for v in variants:
             ms, secs = [], []
