@@ -61,8 +61,8 @@ STAGE1_VARIANTS = {
     # the published Im2Haircut recipe: fine-tune the prior network (AdamW 1e-4, wd 1e-3), penetration 0.3
     "stage1_ft": {"finetune_prior": True, "weights": {"penetration": 0.3}},
 }
-DEFAULT_VARIANTS = ["prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness", "no_visibility",
-                    "no_pca", "kf1", "kf3"]
+DEFAULT_VARIANTS = ["oracle", "prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness",
+                    "no_visibility", "no_pca", "kf1", "kf3"]
 LABELS = {"oracle": "Ground truth encoded in the hair map (representation floor)",
           "prior": "Prior prediction alone", "stage1": "Stage 1 (single view, Z optimised; default)",
           "stage1_ft": "Stage 1 (single view, prior net fine-tuned; Im2Haircut recipe)",
@@ -88,12 +88,11 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
     front = work / "front" / subject
     meta = seq_dir / "ground_truth" / "meta.json"
     if meta.is_file():
-        have = json.loads(meta.read_text())["motion"].get("sway_gain")
-        if have is None or abs(have - sway_gain) > 1e-12:
-            raise SystemExit(f"{meta}: cached sequence has sway_gain {have}, not {sway_gain}; use another --work")
-        fill = json.loads(meta.read_text())["config"].get("head_fill")
-        if fill is None or abs(fill - head_fill) > 1e-12:
-            raise SystemExit(f"{meta}: cached sequence has head_fill {fill}, not {head_fill}; use another --work")
+        cached = json.loads(meta.read_text())
+        for key, have, want in (("sway_gain", cached["motion"].get("sway_gain"), sway_gain),
+                                ("head_fill", cached["config"].get("head_fill"), head_fill)):
+            if have is None or abs(have - want) > 1e-12:
+                raise SystemExit(f"{meta}: cached sequence has {key} {have}, not {want}; use another --work")
     else:
         synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames,
                                                                sway_gain=sway_gain, head_fill=head_fill),
@@ -305,7 +304,8 @@ def main(argv: list[str] | None = None) -> int:
             results[(name, v)] = {k: float(np.mean([m[k] for m in ms])) for k in ms[0]}
             times[(name, v)] = float(np.mean(secs))
     md = table(results, names, variants)
-    timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants if v not in ("prior", "oracle"))
+    timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants
+                        if v not in ("prior", "oracle"))
     regions = region_table(results, names, variants)
     text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
             f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
