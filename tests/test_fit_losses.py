@@ -11,7 +11,8 @@ import torch
 from vid2haircut.fit.config import LossWeights, Stage2Config, apply_overrides, load_settings
 from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
 from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
-                                    robust, silhouette_loss, smoothness_losses, texel_graph)
+                                    robust, silhouette_loss, smoothness_losses, texel_graph,
+                                    tip_height_loss)
 from vid2haircut.fit.trainer import History, weighted_total
 from vid2haircut.fit.visibility import VisibilityGate, point_visibility
 
@@ -128,6 +129,35 @@ def test_robust_smoothness_keeps_small_residuals_and_releases_edges():
         smoothness_losses(p, g, back_weight=1.0, length_scale=scale)["smooth_length"].backward()
         grads.append(float(p.grad[4].norm()))
     assert grads[1] < 0.02 * grads[0]
+
+
+def test_tip_height_follows_the_cut_line_not_the_roots():
+    # 3x3 guides hanging straight down (-y) from roots at different heights, all ending at y = -0.2
+    idx = torch.tensor([r * 4 + c for r in range(3) for c in range(3)])
+    g = texel_graph(idx, 4, back_v=0.0)
+    roots = torch.stack([0.01 * (torch.arange(9.0) % 3), 0.05 * (torch.arange(9.0) // 3), torch.zeros(9)], -1)
+    t = torch.linspace(0.0, 1.0, 6)[:, None]
+    drop = torch.tensor([0.0, -0.2, 0.0])
+    cut = torch.stack([r + t * (drop - r * torch.tensor([0.0, 1.0, 0.0])) for r in roots])   # (9,6,3)
+    assert float(cut[:, -1, 1].std()) < 1e-6 and float(cut[:, 0, 1].std()) > 0.01
+    assert float(tip_height_loss(cut, g)) == pytest.approx(0.0, abs=1e-7)
+    assert float(smoothness_losses(cut, g, back_weight=1.0)["smooth_length"]) > 0.005    # lengths differ
+    # a hidden guide ending 4 cm higher: the loss pulls its tip down, and only along the up axis
+    short = cut.clone().requires_grad_(True)
+    with torch.no_grad():
+        short[4, -1, 1] += 0.04
+    loss = tip_height_loss(short, g)
+    assert loss.item() == pytest.approx((0.04 + 4 * 0.04 / 3) / 9, rel=1e-4)
+    loss.backward()
+    assert float(short.grad[4, -1, 1]) > 0.0                        # descent lowers the tip
+    assert float(short.grad[4, -1, [0, 2]].abs().max()) == 0.0 and float(short.grad[4, :-1].abs().max()) == 0.0
+    # edge-preserving: a fringe 20 cm above its neighbours is barely pulled
+    fringe = cut.clone().requires_grad_(True)
+    with torch.no_grad():
+        fringe[4, -1, 1] += 0.2
+    tip_height_loss(fringe, g, scale=0.01).backward()
+    assert float(fringe.grad[4, -1, 1]) < 0.02 * float(short.grad[4, -1, 1])
+    assert float(tip_height_loss(cut[:1], texel_graph(torch.tensor([0]), 4))) == 0.0   # no neighbours
 
 
 def test_pca_consistency_flows_from_observed_to_unobserved():

@@ -38,6 +38,9 @@ class LossWeights:
     smooth_direction: float = 0.3
     """Neighbour-strand smoothness of directions, mean (1 - cos) of nearby segments (method.md: 1;
     0.3 measured better: at 1 it trades Chamfer_pts for Chamfer_angle)."""
+    smooth_tip: float = 0.0
+    """Neighbour-strand smoothness of the tip height, |Laplacian of the tip's y| in metres
+    (:func:`vid2haircut.fit.losses.tip_height_loss`; not published)."""
     pca: float = 1.0
     """PCA-coefficient consistency of unobserved texels with their neighbours (not published; 1)."""
     canonical: float = 1.0e4
@@ -176,6 +179,8 @@ class Stage2Config:
     residuals well above it, such as the edge of a fringe, are not smoothed; 0 = plain L1). Measured
     on ``benchmarks/quality.py``: 0.01 (with 0.1 below) lowers Chamfer_pts of Stage 2 from 0.132 to
     0.118 (1e-4 m^2; the bangs sequence from 0.260 to 0.205)."""
+    smooth_tip_scale: float = 0.01
+    """Edge-preserving scale of the tip-height smoothness, metres (0 = plain L1)."""
     smooth_direction_scale: float = 0.1
     """Edge-preserving scale of the direction smoothness on 1 - cos (a parting is not pulled
     together; 0 = plain)."""

@@ -15,6 +15,9 @@ Geometry terms act on strands in the canonical head frame:
 - :func:`smoothness_losses`: over neighbouring texels (4-neighbours on the scalp map) strand
   length varies smoothly (a Laplacian, weighted up in the back region) and neighbouring strands
   run alongside each other (1 - cos between nearby segments).
+- :func:`tip_height_loss`: neighbouring strands end at similar heights (a Laplacian of the tip's
+  height over the scalp map): the cut line of hanging hair, which lets hidden strands follow the
+  visible ones that the images lengthen.
 - :func:`pca_consistency_loss`: the coefficients of texels not observed in any keyframe should
   agree with the mean of their hair-bearing neighbours (observed neighbours enter detached, so
   information flows from observed into unobserved regions, never back).
@@ -31,7 +34,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
-           "smoothness_losses", "robust", "pca_consistency_loss", "motion_loss", "quantile_normalize"]
+           "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss", "quantile_normalize"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -183,11 +186,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     seg = points[:, 1:] - points[:, :-1]                                    # (N,S,3)
     length = seg.norm(dim=-1).sum(-1)                                       # (N,)
     i, j = graph.pairs[:, 0], graph.pairs[:, 1]
-    ones = torch.ones_like(length[i])
-    deg = torch.zeros_like(length).index_add(0, i, ones).index_add(0, j, ones)
-    nb_sum = torch.zeros_like(length).index_add(0, i, length[j]).index_add(0, j, length[i])
-    has = deg > 0
-    lap = robust((length - nb_sum / deg.clamp_min(1.0)).abs(), length_scale)
+    residual, has = _laplacian(length, graph)
+    lap = robust(residual.abs(), length_scale)
     back = torch.zeros(n, dtype=torch.bool, device=points.device)
     back[i[graph.back]] = True
     w_len = torch.where(back, torch.full_like(lap, back_weight), torch.ones_like(lap))
@@ -202,6 +202,40 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     cos = (t[i] * tj).sum(-1)
     smooth_direction = (w * robust(1.0 - cos, direction_scale)).sum() / w.sum().clamp_min(1e-9)
     return {"smooth_length": smooth_length, "smooth_direction": smooth_direction}
+
+
+def _laplacian(values: Tensor, graph: TexelGraph) -> tuple[Tensor, Tensor]:
+    """(N,) per-guide values -> ((N,) value minus the mean over its graph neighbours, (N,) bool has neighbours)."""
+    i, j = graph.pairs[:, 0], graph.pairs[:, 1]
+    ones = torch.ones_like(values[i])
+    deg = torch.zeros_like(values).index_add(0, i, ones).index_add(0, j, ones)
+    nb_sum = torch.zeros_like(values).index_add(0, i, values[j]).index_add(0, j, values[i])
+    return values - nb_sum / deg.clamp_min(1.0), deg > 0
+
+
+def tip_height_loss(points: Tensor, graph: TexelGraph, scale: float = 0.0, up: int = 1) -> Tensor:
+    """Neighbouring strands end at similar heights: mean robust |Laplacian of the tip height|.
+
+    Hanging hair is cut along a line: neighbouring strands end at about the same height whatever
+    the height of their roots (a bob, a shoulder-length or long cut; layers vary it slowly). The
+    images lengthen the strands they see reach down to the cut, but not the strands hidden under
+    them or at the back; this term lets those follow their visible neighbours. With ``scale`` > 0
+    it is edge-preserving (:func:`robust`): a fringe ending on the forehead next to long side hair
+    is left alone.
+
+    Args:
+        points: (N,P,3) canonical guide strands (root first), metres.
+        graph: neighbour pairs of the guides.
+        scale: :func:`robust` scale of the residuals, metres (0: plain L1).
+        up: index of the head frame's up axis (1: +y up, the canonical head frame).
+
+    Returns:
+        Scalar (metres); 0 when no guide has a neighbour.
+    """
+    if graph.pairs.numel() == 0:
+        return points.sum() * 0.0
+    lap, has = _laplacian(points[:, -1, up], graph)
+    return robust(lap.abs(), scale)[has].mean()
 
 
 def pca_consistency_loss(z: Tensor, hair: Tensor, observed: Tensor) -> Tensor:

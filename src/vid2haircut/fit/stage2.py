@@ -25,7 +25,8 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses
+from vid2haircut.fit.losses import (motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses,
+                                    tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
@@ -143,6 +144,9 @@ class Stage2Model(nn.Module):
             losses.update(smoothness_losses(canon[:, self.layout.render_index], self.layout.graph, back,
                                             length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale))
+            if cfg.weights.smooth_tip > 0.0:
+                losses["smooth_tip"] = tip_height_loss(canon[:, self.layout.render_index], self.layout.graph,
+                                                       cfg.smooth_tip_scale)
         if cfg.switches.use_pca_consistency:
             losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
         if scale > 0.0:
