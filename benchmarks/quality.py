@@ -16,7 +16,9 @@ then the fitting variants through the same file-level entry points as the pipeli
 Each result is scored against the ground truth (Chamfer_pts in m^2, Chamfer_angle in rad; see
 ``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given),
 followed by the mean Chamfer_pts of each variant split by head region (front / side / back; the
-keyframes turn the head up to ~64 degrees, so the back is never seen). ``--sway-gain`` sets how
+keyframes turn the head up to ~64 degrees, so the back is never seen) and by the median tip height
+of the strands rooted in each region against the ground truth's (hair that is too short ends too
+high). ``--sway-gain`` sets how
 strongly the hair lags the head (``SynthConfig.sway_gain``; the generator default is 0.012, the
 README table uses 0.03 so that the deformation has something to explain).
 ``--stage2-seeds 0,1`` runs the full method and its four switch ablations once per Stage 2 seed
@@ -182,16 +184,22 @@ def _merge(a: dict, b: dict) -> dict:
 
 def score(pred: Path, gt: Path, cache: Path) -> dict:
     """Metrics of a strand file against the ground truth, with Chamfer_pts split by head region
-    (front / side / back), cached next to the prediction."""
-    from vid2haircut.evaluate.metrics import evaluate_strands
+    (front / side / back) and the median tip height above the ground truth's per root region
+    (``tip_dy_<region>``, metres; positive = too short), cached next to the prediction."""
+    from vid2haircut.evaluate.metrics import evaluate_strands, tip_heights
     from vid2haircut.io.atomic import write_json
     from vid2haircut.io.strand_formats import load_strands
 
+    m = {}
     if cache.is_file() and cache.stat().st_mtime >= pred.stat().st_mtime:
         m = json.loads(cache.read_text())
-        if "chamfer_pts_back" in m:
+        if "chamfer_pts_back" in m and "tip_dy_back" in m:
             return m
-    m = evaluate_strands(load_strands(pred), load_strands(gt), max_points=200_000, by_region=True)
+    p, g = load_strands(pred), load_strands(gt)
+    if "chamfer_pts_back" not in m:
+        m = evaluate_strands(p, g, max_points=200_000, by_region=True)
+    hp, hg = tip_heights(p), tip_heights(g)
+    m.update({f"tip_dy_{r}": hp[r] - hg[r] for r in hp})
     write_json(cache, m)
     return m
 
@@ -205,6 +213,18 @@ def region_table(results: dict, seqs: list[str], variants: list[str]) -> str:
             continue
         parts = [np.mean([m[f"chamfer_pts_{r}"] for m in ms]) * 1e4 for r in ("front", "side", "back")]
         lines.append(f"| {LABELS[v]} | " + " | ".join(f"{x:.3f}" for x in parts) + f" | {sum(parts):.3f} |")
+    return "\n".join(lines)
+
+
+def tip_table(results: dict, seqs: list[str], variants: list[str]) -> str:
+    """Markdown: mean over the sequences of the median tip height above the ground truth's (cm) per root region."""
+    lines = ["| method | front | side | back |", "|---|---|---|---|"]
+    for v in variants:
+        ms = [results[(s, v)] for s in seqs if (s, v) in results]
+        if len(ms) != len(seqs) or not all("tip_dy_back" in m for m in ms):
+            continue
+        parts = [np.nanmean([m[f"tip_dy_{r}"] for m in ms]) * 100 for r in ("front", "side", "back")]
+        lines.append(f"| {LABELS[v]} | " + " | ".join(f"{x:+.1f}" for x in parts) + " |")
     return "\n".join(lines)
 
 
@@ -310,6 +330,9 @@ def main(argv: list[str] | None = None) -> int:
     text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
             f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
             f"side 60-120 deg, back >= 120 deg; the keyframes turn up to ~64 deg):\n\n{regions}\n\n"
+            f"Median tip height of the strands rooted in each region above the ground truth's, cm (mean over "
+            f"the sequences; positive = the hair ends too high, i.e. is too short):\n\n"
+            f"{tip_table(results, names, variants)}\n\n"
             f"Mean fit time per variant (this machine): {timing}\n")
     if len(seeds) > 1:
         text += "\n" + seed_table(per_seed, names, [v for v in variants if v in SEEDED_VARIANTS], seeds) + "\n"

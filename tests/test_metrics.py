@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from vid2haircut.evaluate import THRESHOLDS, evaluate_files, evaluate_strands
+from vid2haircut.evaluate.metrics import tip_heights
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 
@@ -143,3 +144,18 @@ def test_chamfer_by_region_credits_each_region_and_sums_to_the_total():
     assert parts["chamfer_pts_front"] == 0.0 and parts["chamfer_pts_side"] == 0.0
     assert parts["chamfer_pts_back"] == pytest.approx(2 * (0.003 ** 2) / 3, rel=1e-4)
     assert sum(parts.values()) == pytest.approx(total, rel=1e-9)
+
+
+def test_tip_heights_by_root_region():
+    # hanging strands rooted in front (+z), at the side (+x) and at the back (-z), of different lengths;
+    # the back strand's tip swings forward (its tip point lies in front) but counts as back by its root
+    def hang(x, z, drop, tip_dz=0.0):
+        p = np.zeros((10, 3), np.float32)
+        p[:, 0], p[:, 1], p[:, 2] = x, np.linspace(0.0, -drop, 10), z + np.linspace(0.0, tip_dz, 10)
+        return p
+    s = StrandSet(np.stack([hang(0, 0.1, 0.1), hang(0, 0.1, 0.2), hang(0.1, 0, 0.15), hang(0, -0.1, 0.3, 0.25)]))
+    h = tip_heights(s)
+    assert h["front"] == pytest.approx(-0.15) and h["side"] == pytest.approx(-0.15)
+    assert h["back"] == pytest.approx(-0.3)
+    only_front = tip_heights(StrandSet(s.points[:1]))
+    assert only_front["front"] == pytest.approx(-0.1) and np.isnan(only_front["back"])

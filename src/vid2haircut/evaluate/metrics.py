@@ -26,7 +26,8 @@ from vid2haircut.io.atomic import write_json
 from vid2haircut.io.strand_formats import load_strands
 from vid2haircut.strands import StrandSet
 
-__all__ = ["THRESHOLDS", "REGIONS", "OrientedPoints", "oriented_points", "evaluate_strands", "evaluate_files"]
+__all__ = ["THRESHOLDS", "REGIONS", "OrientedPoints", "oriented_points", "evaluate_strands", "evaluate_files",
+           "tip_heights"]
 
 #: (radius metres, angle degrees) pairs of the oriented-point precision / recall (HairGS).
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.002, 20.0), (0.003, 30.0), (0.004, 40.0))
@@ -121,6 +122,25 @@ def _region_of(points: np.ndarray) -> np.ndarray:
     for i, (_, lo, _hi) in enumerate(REGIONS):
         out[az >= lo] = i
     return out
+
+
+def tip_heights(strands: StrandSet) -> dict[str, float]:
+    """Median tip height (head frame +y, metres) of the strands rooted in each head region.
+
+    Hanging hair ends along a cut line, so comparing these medians with the ground truth's tells
+    whether a reconstruction's hair is too short (higher tips) or too long, region by region; the
+    region is the root's (:data:`REGIONS`), NaN where no strand is rooted.
+
+    Returns:
+        {"front": m, "side": m, "back": m}.
+    """
+    pts = np.asarray(strands.points)
+    if len(pts) == 0:
+        return {name: float("nan") for name, _, _ in REGIONS}
+    tips = pts[:, -1]
+    reg = _region_of(pts[:, 0])
+    return {name: float(np.median(tips[reg == i, 1])) if np.any(reg == i) else float("nan")
+            for i, (name, _, _) in enumerate(REGIONS)}
 
 
 def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_points: int = 200_000,
