@@ -14,7 +14,7 @@ import torch
 from vid2haircut.fit.config import Stage2Config, apply_overrides
 from vid2haircut.fit.deform import DeformationField, DeformConfig, deformation_weight
 from vid2haircut.fit.scene import image_losses, render_frames
-from vid2haircut.fit.stage2 import Stage2Model, checkpoint_state, fit_stage2
+from vid2haircut.fit.stage2 import Stage2Model, checkpoint_state, fit_stage2, harmonic_extension
 from vid2haircut.fit.toy import toy_problem, write_toy_files
 
 FAST = {"iterations": 8, "canonical_steps": 3, "ramp_steps": 2, "lr_z": 0.1, "render": {"n_points": 16},
@@ -103,6 +103,60 @@ def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
     assert float(g_on[~pv].abs().max()) == 0.0                            # invisible points get nothing
     assert float(g_off[~pv].abs().max()) > 0.0                            # ... which the gate really removed
     assert torch.allclose(g_on[pv], g_off[pv])                            # visible ones keep their gradient
+
+
+def test_harmonic_extension_interpolates_between_known_nodes():
+    # a path 0-1-2-3-4 with the ends known: the inner nodes interpolate linearly
+    pairs = torch.tensor([[0, 1], [1, 2], [2, 3], [3, 4]])
+    known = torch.tensor([True, False, False, False, True])
+    ext = harmonic_extension(pairs, 5, known, eps=0.0)
+    assert ext.shape == (3, 2)
+    u = ext @ torch.tensor([0.0, 1.0], dtype=torch.float64)
+    assert torch.allclose(u, torch.tensor([0.25, 0.5, 0.75], dtype=torch.float64))
+    # one known end: the whole chain follows it (eps only pulls it slightly towards 0)
+    one = harmonic_extension(pairs, 5, torch.tensor([True, False, False, False, False]))
+    assert torch.all(one > 0.95) and torch.all(one <= 1.0)
+    # a node cut off from every known node gets 0
+    iso = harmonic_extension(pairs[:1], 3, torch.tensor([True, False, False]))
+    assert float(iso[1].abs().max()) == 0.0 and float(iso[0, 0]) > 0.99
+
+
+def test_unobserved_guides_follow_the_observed_change(toy):
+    z0, m0 = _start(toy)
+    model = Stage2Model(toy.data, toy.codec, _cfg(extend_unobserved=True), z0, m0)
+    model.get_loss_dict(0)                                               # first render fixes the followers
+    follow = model.follow.clone()
+    assert follow.any() and (~follow).any()
+    k = z0.shape[0]
+    tix = model.layout.texel_index
+    with torch.no_grad():
+        assert torch.equal(model.z, model.zmap())                         # no change yet: nothing added
+        model.zmap.delta.view(k, -1)[0, tix[~follow]] = 1.0 / model.zmap.gain.view(k, -1)[0, tix[~follow]]
+        z = model.z.reshape(k, -1)
+    # the observed guides changed their first coefficient by 1: the followers move by about as much
+    assert torch.allclose(z[0, tix[~follow]], torch.ones(int((~follow).sum())), atol=1e-5)
+    assert float(z[0, tix[follow]].min()) > 0.9 and float(z[0, tix[follow]].max()) <= 1.0 + 1e-6
+    assert float(z[1:].abs().max()) < 1e-6
+    # the addition is detached: the followers' losses do not reach the observed coefficients
+    model.zmap.delta.grad = None
+    model.z.reshape(k, -1)[0, tix[follow]].sum().backward()
+    assert float(model.zmap.delta.grad.view(k, -1)[:, tix[~follow]].abs().max()) == 0.0
+    # switched off (default): the map is the plain one
+    off = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0)
+    off.get_loss_dict(0)
+    assert not off.follow.any()
+    # a resumed fit restores the followers and ends where the uninterrupted one does
+    states = {}
+
+    def keep(step, model, trainer):
+        if step == 3:
+            states["ck"] = copy.deepcopy(checkpoint_state(step, model, trainer))
+
+    a = fit_stage2(toy.data, toy.codec, _cfg(extend_unobserved=True), z0, m0, progress=False, on_step=keep)
+    c = fit_stage2(toy.data, toy.codec, _cfg(extend_unobserved=True), z0, m0, progress=False, resume=states["ck"])
+    assert states["ck"]["model"]["follow"].any()
+    assert torch.allclose(a.z, c.z, atol=1e-6) and not torch.allclose(a.z, fit_stage2(
+        toy.data, toy.codec, _cfg(), z0, m0, progress=False).z, atol=1e-4)
 
 
 def test_same_seed_same_output_and_resume(toy):

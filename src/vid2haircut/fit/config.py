@@ -186,6 +186,10 @@ class Stage2Config:
     together; 0 = plain)."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
+    extend_unobserved: bool = False
+    """Guides that no keyframe observes at the start (the back) also move by the harmonic extension,
+    over the scalp map, of the change Stage 2 makes to the observed guides (e.g. the sides grow
+    longer, so does the back); see :attr:`vid2haircut.fit.stage2.Stage2Model.z`."""
     weights: LossWeights = field(default_factory=LossWeights)
     """Loss weights."""
     switches: Switches = field(default_factory=Switches)

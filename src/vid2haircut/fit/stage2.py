@@ -34,9 +34,36 @@ from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.fit.visibility import VisibilityGate, texel_visible_fraction
 from vid2haircut.prior.codec import StrandCodec
 
-__all__ = ["Stage2Model", "fit_stage2"]
+__all__ = ["Stage2Model", "fit_stage2", "harmonic_extension"]
 
 log = logging.getLogger(__name__)
+
+
+def harmonic_extension(pairs: Tensor, n: int, known: Tensor, eps: float = 1e-3) -> Tensor:
+    """The matrix that extends values given on ``known`` nodes harmonically to the other nodes.
+
+    On the graph with edges ``pairs``, the unknown values u minimise sum over edges (u_i - u_j)^2
+    with the known values fixed: every unknown node takes the mean of its neighbours (a discrete
+    Laplace equation with Dirichlet values on the known nodes). ``eps`` (times each node's degree)
+    ties unknown nodes weakly to 0, so a region with no known node gets 0 rather than a singular
+    system.
+
+    Args:
+        pairs: (E,2) long node pairs. n: number of nodes. known: (n,) bool.
+
+    Returns:
+        (n_unknown, n_known) float64 matrix E: ``u[~known] = E @ v[known]``.
+    """
+    lap = torch.zeros(n, n, dtype=torch.float64)
+    i, j = pairs[:, 0].cpu(), pairs[:, 1].cpu()
+    lap.index_put_((i, j), torch.full((len(i),), -1.0, dtype=torch.float64), accumulate=True)
+    lap.index_put_((j, i), torch.full((len(i),), -1.0, dtype=torch.float64), accumulate=True)
+    deg = -lap.sum(1)
+    lap += torch.diag(deg)
+    k = known.cpu().bool()
+    u = ~k
+    a = lap[u][:, u] + torch.diag(eps * deg[u].clamp_min(1.0))
+    return torch.linalg.solve(a, -lap[u][:, k])
 
 
 class Stage2Model(nn.Module):
@@ -63,6 +90,9 @@ class Stage2Model(nn.Module):
                        .to(dev) if cfg.switches.use_deformation else None)
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
+        # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
+        self.register_buffer("follow", torch.zeros(n, dtype=torch.bool, device=dev))
+        self._extension: Tensor | None = None
         self.last_render = None
         self.last_frames: Tensor | None = None
         self.last_deformed: Tensor | None = None
@@ -102,8 +132,34 @@ class Stage2Model(nn.Module):
 
     @property
     def z(self) -> Tensor:
-        """(K,R,R) current hair map."""
-        return self.zmap()
+        """(K,R,R) current hair map.
+
+        With ``cfg.extend_unobserved`` the guides that no keyframe observed at the start also move
+        by the harmonic extension (over the scalp map's neighbour graph) of the change that Stage 2
+        has made to the observed ones so far (detached: the unseen hair follows the seen hair,
+        never the reverse); their own coefficients stay free for the geometry terms.
+        """
+        z = self.zmap()
+        if not self.cfg.extend_unobserved or not bool(self.follow.any()):
+            return z
+        if self._extension is None:
+            ext = harmonic_extension(self.layout.graph.pairs, int(self.follow.numel()), ~self.follow)
+            self._extension = ext.to(z)
+        k = z.shape[0]
+        flat = z.reshape(k, -1)
+        tix = self.layout.texel_index
+        change = (flat[:, tix] - self.zmap.z0.reshape(k, -1)[:, tix]).detach()       # (K,N)
+        add = torch.zeros_like(flat)
+        add[:, tix[self.follow]] = change[:, ~self.follow] @ self._extension.T
+        return z + add.reshape(z.shape)
+
+    def _freeze_follow(self) -> None:
+        """After the first render: the guides seen in no keyframe follow the seen ones from now on."""
+        if self.cfg.extend_unobserved and not bool(self.follow.any()) and bool(self.seen.any()):
+            seen = self.seen.amax(0) >= self.cfg.observed_fraction
+            if bool(seen.any()) and not bool(seen.all()):
+                self.follow.copy_(~seen)
+                self._extension = None
 
     def canonical(self) -> Tensor:
         """(N,P,3) canonical guides (codec points) of the current Z."""
@@ -133,6 +189,7 @@ class Stage2Model(nn.Module):
         self.gate.set_visibility(out.visibility)
         with torch.no_grad():
             self.seen[frames] = texel_visible_fraction(out.visibility).to(self.seen.dtype)
+            self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
