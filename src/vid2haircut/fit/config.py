@@ -40,7 +40,10 @@ class LossWeights:
     0.3 measured better: at 1 it trades Chamfer_pts for Chamfer_angle)."""
     smooth_tip: float = 0.0
     """Neighbour-strand smoothness of the tip height, |Laplacian of the tip's y| in metres
-    (:func:`vid2haircut.fit.losses.tip_height_loss`; not published)."""
+    (:func:`vid2haircut.fit.losses.tip_height_loss`; not published). Off: measured on
+    ``benchmarks/quality.py`` (Stage 2 seed 0, Chamfer_pts 1e-4 m^2), weight 1 moved the tips little
+    and changed bob 0.077 -> 0.093, bangs 0.196 -> 0.203; weight 10 made the wavy sequence 0.585 ->
+    0.829: the tips are pulled towards the too-short front strands as much as the reverse."""
     pca: float = 1.0
     """PCA-coefficient consistency of unobserved texels with their neighbours (not published; 1)."""
     canonical: float = 1.0e4
@@ -189,7 +192,10 @@ class Stage2Config:
     extend_unobserved: bool = False
     """Guides that no keyframe observes at the start (the back) also move by the harmonic extension,
     over the scalp map, of the change Stage 2 makes to the observed guides (e.g. the sides grow
-    longer, so does the back); see :attr:`vid2haircut.fit.stage2.Stage2Model.z`."""
+    longer, so does the back); see :attr:`vid2haircut.fit.stage2.Stage2Model.z`. Off: measured on
+    ``benchmarks/quality.py`` (seed 0, Chamfer_pts 1e-4 m^2) it lowers the wavy sequence 0.585 ->
+    0.539 (back 0.312 -> 0.266) but raises bangs 0.196 -> 0.213, shoulder-length 0.124 -> 0.156 and
+    bob 0.077 -> 0.080."""
     weights: LossWeights = field(default_factory=LossWeights)
     """Loss weights."""
     switches: Switches = field(default_factory=Switches)
