@@ -146,3 +146,15 @@ def test_load_prior_errors(tmp_path):
     (tmp_path / "prior.json").write_text("{}")
     with pytest.raises(ValueError, match="prior.pt"):
         load_prior(tmp_path)
+
+
+def test_large_setting_is_the_default_with_more_styles_and_steps():
+    from dataclasses import replace
+
+    from vid2haircut.prior.train import SETTINGS, config_fingerprint
+
+    large, default = SETTINGS["large"], SETTINGS["default"]
+    assert large.data.train_seeds == tuple(range(24)) and large.steps == 5000
+    assert replace(large, data=replace(large.data, train_seeds=default.data.train_seeds), steps=default.steps) == default
+    assert max(large.data.train_seeds) < 1000                      # evaluation seeds stay unseen
+    assert config_fingerprint(large, 0) != config_fingerprint(default, 0)
