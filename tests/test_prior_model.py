@@ -158,3 +158,32 @@ def test_large_setting_is_the_default_with_more_styles_and_steps():
     assert replace(large, data=replace(large.data, train_seeds=default.data.train_seeds), steps=default.steps) == default
     assert max(large.data.train_seeds) < 1000                      # evaluation seeds stay unseen
     assert config_fingerprint(large, 0) != config_fingerprint(default, 0)
+
+
+def test_photo_view_is_made_like_the_pipeline_targets():
+    """A "photo" training view: the photo's hair coverage is the mask, the Gabor orientation of the
+    photo follows the strands, and it lines up with the direct render of the same strands."""
+    from vid2haircut.head import get_head
+    from vid2haircut.prior.corpus import generate_style
+    from vid2haircut.prior.views import ViewConfig, photo_view, random_pose, render_view
+
+    head = get_head("proxy-v1")
+    pts = generate_style("bob", 3, 1500, 40, head).points
+    pose = random_pose(np.random.default_rng(1))
+    cfg = ViewConfig(source="photo", photo_size=192, render_size=192, render_strands=1500)
+    photo = photo_view(pts, head, pose, cfg, distance=0.7)
+    direct = render_view(pts, head, pose, cfg, distance=0.7)
+    assert photo.mask.shape == (192, 192) and np.allclose(photo.K, direct.K) and np.allclose(photo.world_2_cam,
+                                                                                         direct.world_2_cam)
+    a, b = photo.mask >= 0.5, direct.mask >= 0.5
+    assert a.sum() > 500 and (a & b).sum() / (a | b).sum() > 0.6            # the same hair, drawn two ways
+    both = a & b
+    diff = np.abs(photo.angle[both] - direct.angle[both])
+    diff = np.minimum(diff, np.pi - diff)                                      # undirected
+    assert np.median(diff) < np.radians(20.0)                                  # Gabor follows the strands
+    dv = photo.depth[photo.depth_valid]
+    assert dv.size > 500 and np.isfinite(dv).all() and 0.0 < float(np.median(dv)) < 1.0   # quantile-normalised
+    x = prior_input(*photo.as_tuple(), photo.K, photo.world_2_cam, pose, size=64)
+    assert x.shape == (1, 6, 64, 64) and torch.isfinite(x).all()
+    with pytest.raises(ValueError, match="N,P,3"):
+        photo_view(pts[0], head, pose, cfg)

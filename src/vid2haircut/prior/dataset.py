@@ -26,9 +26,10 @@ import torch
 
 from vid2haircut.io.atomic import write_npz
 from vid2haircut.prior.codec import StrandCodec
-from vid2haircut.prior.corpus import Corpus, build_corpus, load_corpus, resolve_families, save_corpus
+from vid2haircut.prior.corpus import (Corpus, build_corpus, generate_style, load_corpus, resolve_families,
+                                     save_corpus)
 from vid2haircut.prior.hairmap import encode_strands
-from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, prior_input, random_pose, render_view
+from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, photo_view, prior_input, random_pose, render_view
 
 __all__ = ["DatasetConfig", "PriorDataset", "load_or_build_corpus", "build_dataset", "recipe_hash"]
 
@@ -126,13 +127,24 @@ def _render_inputs(corpus: Corpus, head: Any, cfg: DatasetConfig, input_size: in
     inputs = np.zeros((n_styles * n_views, len(INPUT_CHANNELS), input_size, input_size), np.float16)
     style = np.repeat(np.arange(n_styles), n_views)
     bar = tqdm(total=n_styles * n_views, desc="prior views", disable=not progress, leave=False)
+    photo = cfg.view.source == "photo"
+    if cfg.view.source not in ("render", "photo"):
+        raise ValueError(f"ViewConfig.source must be 'render' or 'photo', got {cfg.view.source!r}")
     for i in range(n_styles):
         pts = corpus.strand_set(i).points
+        if photo:
+            family, style_seed = corpus.styles[i]
+            pts = generate_style(family, int(style_seed), cfg.view.photo_strands, cfg.n_points, head).points
         for v in range(n_views):
             ss = np.random.SeedSequence([int(seed), 7919, i, v])
             rng = np.random.default_rng(ss)
             pose = random_pose(rng, cfg.view)
-            maps = render_view(pts, head, pose, cfg.view, seed=int(rng.integers(2 ** 31)))
+            view_seed = int(rng.integers(2 ** 31))
+            if photo:
+                dist = float(np.random.default_rng(view_seed).uniform(*cfg.view.distance_m))
+                maps = photo_view(pts, head, pose, cfg.view, distance=dist)
+            else:
+                maps = render_view(pts, head, pose, cfg.view, seed=view_seed)
             x = prior_input(*maps.as_tuple(), maps.K, maps.world_2_cam, pose, size=input_size)
             inputs[i * n_views + v] = x[0].numpy().astype(np.float16)
             bar.update(1)

@@ -101,9 +101,12 @@ SETTINGS: dict[str, TrainConfig] = {
                                                               render_points=12, strand_width=4e-3)),
         steps=150, batch=4, lr=3e-3, warmup=10, n_texels=32, shift_px=2),
     "large": TrainConfig(data=DatasetConfig(train_seeds=tuple(range(24))), steps=5000),
+    "photo": TrainConfig(data=DatasetConfig(view=ViewConfig(source="photo"))),
 }
 """Named settings of ``train_prior``: ``default`` (the committed prior), ``tiny`` (tests) and
-``large`` (3x the hairstyles, 2x the steps; 17 min on one core, measured in the README)."""
+``large`` (3x the hairstyles, 2x the steps; 17 min on one core, measured in the README) and
+``photo`` (the default trained on views made like the pipeline's targets: photo, hair coverage,
+Gabor orientation; :func:`vid2haircut.prior.views.photo_view`)."""
 
 
 def config_fingerprint(cfg: TrainConfig, seed: int) -> str:

@@ -36,7 +36,7 @@ import torch.nn.functional as F
 from vid2haircut.geometry import apply_transform, axis_angle_to_matrix, make_transform
 
 __all__ = ["INPUT_CHANNELS", "CROP_HALF_EXTENT", "CROP_CENTER", "prior_input", "crop_affine", "ViewConfig",
-           "ViewMaps", "random_pose", "render_view", "relative_depth_quantile"]
+           "ViewMaps", "random_pose", "render_view", "photo_view", "relative_depth_quantile"]
 
 INPUT_CHANNELS = ("mask", "mask_cos2a", "mask_sin2a", "depth", "depth_valid", "in_image")
 """Channel order of :func:`prior_input`."""
@@ -149,6 +149,14 @@ class ViewConfig:
     """Points per strand for rendering (resampled by index stride)."""
     strand_width: float = 2.0e-3
     """Strand width used for the training renders, metres."""
+    source: str = "render"
+    """"render": maps drawn directly by the strand renderer (:func:`render_view`); "photo": a
+    photo-like frame of a denser copy of the style, turned into maps as the pipeline's targets are
+    (the frame's hair coverage as the mask, the Gabor orientation of the photo; :func:`photo_view`)."""
+    photo_strands: int = 10000
+    """Strands of the denser copy drawn in "photo" views (the synthetic sequences use 10k)."""
+    photo_size: int = 512
+    """Side of the "photo" frames (the synthetic sequences' 512 px camera)."""
 
 
 class ViewMaps(NamedTuple):
@@ -257,3 +265,36 @@ def render_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg:
     mask = r.mask[0].numpy()
     depth = relative_depth_quantile(r.depth[0].numpy(), mask)
     return ViewMaps(mask.astype(np.float32), r.angle[0].numpy().astype(np.float32), depth, mask.copy(), K, w2c)
+
+
+def photo_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg: ViewConfig = ViewConfig(),
+               colors: np.ndarray | None = None, distance: float = 0.7) -> ViewMaps:
+    """A training view made like the pipeline's targets: a photo-like frame of the strands
+    (:func:`vid2haircut.synth.photo.render_photo`, the synthetic sequences' camera moved to
+    ``distance``), its hair coverage as the mask and the Gabor orientation of the photo
+    (:func:`vid2haircut.front.targets.orientation.orientation_map`), relative depth of the hair.
+
+    Args:
+        points: (N,P,3) strands in the head's canonical frame (dense: the photo draws every one).
+        head, world_from_head: head model and pose. cfg: uses ``photo_size``.
+        colors: (N,3) linear-RGB strand albedo (None: the renderer's brown).
+        distance: camera distance, metres.
+
+    Returns:
+        :class:`ViewMaps` of size ``cfg.photo_size``.
+    """
+    from vid2haircut.camera import Camera
+    from vid2haircut.front.targets.orientation import orientation_map
+    from vid2haircut.synth.photo import render_photo
+
+    pts = np.asarray(points, np.float32)
+    if pts.ndim != 3 or pts.shape[-1] != 3 or pts.shape[0] == 0:
+        raise ValueError(f"photo_view: points must be (N,P,3) with N >= 1, got {pts.shape}")
+    size = int(cfg.photo_size)
+    K, w2c = view_camera(head, distance, size)
+    fr = render_photo(Camera(K, w2c, size, size), head, world_from_head, pts, colors)
+    mask = np.asarray(fr.hair, np.float32)
+    om = orientation_map(fr.image, mask)
+    valid = (mask >= 0.5) & np.isfinite(fr.hair_depth)
+    depth = relative_depth_quantile(np.nan_to_num(fr.hair_depth), valid)
+    return ViewMaps(mask, np.asarray(om.angle, np.float32), depth, valid, K, w2c)
