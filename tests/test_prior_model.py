@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -187,3 +188,15 @@ def test_photo_view_is_made_like_the_pipeline_targets():
     assert x.shape == (1, 6, 64, 64) and torch.isfinite(x).all()
     with pytest.raises(ValueError, match="N,P,3"):
         photo_view(pts[0], head, pose, cfg)
+
+
+def test_bundled_prior_is_the_default_setting():
+    """The packaged artifact records the fingerprint of SETTINGS["default"] (so `train_prior --setting
+    default` rebuilds it, and new, unused config fields do not silently change the default)."""
+    import vid2haircut
+    from vid2haircut.prior.train import SETTINGS, config_fingerprint
+
+    rec = json.loads((Path(vid2haircut.__file__).parent / "data/prior/default/prior.json").read_text())
+    assert rec["fingerprint"] == config_fingerprint(SETTINGS["default"], rec["seed"])
+    assert "source" not in SETTINGS["default"].to_dict()["data"]["view"]
+    assert SETTINGS["photo"].to_dict()["data"]["view"]["source"] == "photo"

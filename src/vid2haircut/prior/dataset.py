@@ -63,6 +63,9 @@ class DatasetConfig:
         """JSON-able record (families resolved)."""
         d = asdict(self)
         d["families"] = list(self.families_or_all())
+        if self.view.source == "render":      # the photo settings do not apply: records (and fingerprints)
+            for key in ("source", "photo_strands", "photo_size"):   # stay those of direct-render priors
+                d["view"].pop(key)
         return json.loads(json.dumps(d))
 
 
@@ -173,7 +176,7 @@ def build_dataset(corpus: Corpus, codec: StrandCodec, head: Any, cfg: DatasetCon
     """
     z, mask = _targets(corpus, codec, head, map_res)
     recipe = {"styles": [list(s) for s in corpus.styles], "strands": int(corpus.n_strands),
-              "view": asdict(cfg.view), "views": cfg.views_per_style, "size": input_size, "seed": seed,
+              "view": cfg.to_dict()["view"], "views": cfg.views_per_style, "size": input_size, "seed": seed,
               "head": cfg.head, "points_sum": float(np.float64(corpus.points[::97].sum())),
               "channels": list(INPUT_CHANNELS)}
     path = None if cache_dir is None else Path(cache_dir) / f"views_{recipe_hash(recipe)}.npz"
