@@ -188,6 +188,8 @@ def test_photo_view_is_made_like_the_pipeline_targets():
     assert x.shape == (1, 6, 64, 64) and torch.isfinite(x).all()
     with pytest.raises(ValueError, match="N,P,3"):
         photo_view(pts[0], head, pose, cfg)
+    with pytest.raises(ValueError, match="source"):
+        ViewConfig(source="video")
 
 
 def test_bundled_prior_is_the_default_setting():

@@ -156,7 +156,7 @@ class Stage2Model(nn.Module):
     def _freeze_follow(self) -> None:
         """After the first render: the guides seen in no keyframe follow the seen ones from now on."""
         if self.cfg.extend_unobserved and not bool(self.follow.any()) and bool(self.seen.any()):
-            seen = self.seen.amax(0) >= self.cfg.observed_fraction
+            seen = self._seen_guides()
             if bool(seen.any()) and not bool(seen.all()):
                 self.follow.copy_(~seen)
                 self._extension = None
@@ -218,8 +218,12 @@ class Stage2Model(nn.Module):
         """(R,R) bool texels whose guide was seen (visible fraction >= observed_fraction) in some keyframe."""
         res = self.layout.res
         obs = torch.zeros(res * res, dtype=torch.bool, device=self.zmap.z0.device)
-        obs[self.layout.texel_index] = self.seen.amax(0) >= self.cfg.observed_fraction
+        obs[self.layout.texel_index] = self._seen_guides()
         return obs.reshape(res, res)
+
+    def _seen_guides(self) -> Tensor:
+        """(N,) bool guides whose visible fraction reached ``observed_fraction`` in some keyframe."""
+        return self.seen.amax(0) >= self.cfg.observed_fraction
 
     @torch.no_grad()
     def render_all(self, step: int) -> None:

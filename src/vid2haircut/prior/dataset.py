@@ -131,8 +131,6 @@ def _render_inputs(corpus: Corpus, head: Any, cfg: DatasetConfig, input_size: in
     style = np.repeat(np.arange(n_styles), n_views)
     bar = tqdm(total=n_styles * n_views, desc="prior views", disable=not progress, leave=False)
     photo = cfg.view.source == "photo"
-    if cfg.view.source not in ("render", "photo"):
-        raise ValueError(f"ViewConfig.source must be 'render' or 'photo', got {cfg.view.source!r}")
     for i in range(n_styles):
         pts = corpus.strand_set(i).points
         if photo:

@@ -158,6 +158,10 @@ class ViewConfig:
     photo_size: int = 512
     """Side of the "photo" frames (the synthetic sequences' 512 px camera)."""
 
+    def __post_init__(self) -> None:
+        if self.source not in ("render", "photo"):
+            raise ValueError(f"ViewConfig.source must be 'render' or 'photo', got {self.source!r}")
+
 
 class ViewMaps(NamedTuple):
     """One rendered training view (numpy, image size H = W = ``render_size``).
