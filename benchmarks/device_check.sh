@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# One prepared run of every accelerator check, for a machine with CUDA (see README "Performance").
+#
+#   OUT=/some/folder bash benchmarks/device_check.sh
+#
+# Needs the demo's front-stage outputs (make demo first): resources/demo, results/keyframes,
+# results/fit_head, results/targets. Writes to $OUT: stages.log (what ran where, the demo's Stage 1 +
+# Stage 2 on $DEV (default cuda) with wall times), stage2.json and stage2_strands.npz (to evaluate
+# against the CPU run), render.txt (benchmarks/render_bench.py on cuda), fit.json and prior.json (CPU vs cuda
+# agreement). Each step has its own time limit so one slow step cannot starve the others.
+set -u
+OUT=${OUT:?set OUT to a folder}
+PY=${PY:-python3}
+export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
+mkdir -p "$OUT"
+
+DEV=${DEV:-cuda}
+{ nvidia-smi -L; $PY -c "import sys, torch; print(sys.version.split()[0], 'torch', torch.__version__, torch.cuda.is_available())"; nproc; } >"$OUT/stages.log" 2>&1
+
+SEQ="--root resources/demo --subject synth_0000 --seq HAIR --keyframes results/keyframes/synth_0000/HAIR/keyframes.json \
+ --head results/fit_head/synth_0000/HAIR/head.npz --targets results/targets/synth_0000/HAIR --settings {} --device $DEV --seed 0 --no-progress"
+W=/tmp/v2h_device
+rm -rf "$W"
+{
+  t0=$(date +%s.%N)
+  timeout 120 $PY -m vid2haircut stage1 $SEQ --out $W/stage1 --prior-dir src/vid2haircut/data/prior/default
+  t1=$(date +%s.%N)
+  timeout 200 $PY -m vid2haircut stage2 $SEQ --out $W/stage2 --stage1-dir $W/stage1
+  t2=$(date +%s.%N)
+  awk -v a="$t0" -v b="$t1" -v c="$t2" 'BEGIN { printf "stage1_wall_s %.1f\nstage2_wall_s %.1f\n", b - a, c - b }'
+} >>"$OUT/stages.log" 2>&1
+cp $W/stage2/stage2.json "$OUT/" 2>/dev/null
+cp $W/stage2/strands.npz "$OUT/stage2_strands.npz" 2>/dev/null
+
+timeout 100 $PY benchmarks/render_bench.py --device $DEV --backend torch --repeat 3 >"$OUT/render.txt" 2>&1
+timeout 40 $PY benchmarks/render_bench.py --device $DEV --backend torch --quick --frames 8 >>"$OUT/render.txt" 2>&1
+timeout 100 $PY benchmarks/fit_device_check.py --out "$OUT/fit.json" >"$OUT/fit.txt" 2>&1
+timeout 50 $PY benchmarks/prior_device_check.py --out "$OUT/prior.json" >>"$OUT/fit.txt" 2>&1
+cat "$OUT/stages.log" "$OUT/render.txt" "$OUT/fit.txt"
