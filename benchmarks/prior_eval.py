@@ -1,7 +1,8 @@
 """Learned prior vs the mean hairstyle on unseen generated views, as a Markdown table.
 
 For every generator family and every unseen seed (default 1000, 1001; training uses 0-7) a
-hairstyle is generated, rendered from random frontal-ish poses, passed through the prior and
+hairstyle is generated, viewed from random frontal-ish poses the way the prior was trained (its
+recorded view settings: direct renders, or photos turned into targets), passed through the prior and
 decoded to dense strands; Chamfer_pts (m^2, reported x 1e-4) against the generated strands is
 compared with the mean hairstyle (zero map = the codec's mean strand, with the training set's mean
 mask) and the per-texel mean map of the training set.
@@ -43,7 +44,7 @@ def main() -> int:
     net, codec, record = load_prior(args.prior_dir)
     fams = args.families or list(FAMILIES)
     t0 = time.perf_counter()
-    rows = evaluate_prior(net, codec, fams, args.seeds, views_per_style=args.views, view_cfg=ViewConfig(),
+    rows = evaluate_prior(net, codec, fams, args.seeds, views_per_style=args.views, view_cfg=ViewConfig.from_dict(record["config"]["data"]["view"]),
                           strands_per_style=args.strands, n_dense=args.dense)
     elapsed = time.perf_counter() - t0
     table = summarise(rows)

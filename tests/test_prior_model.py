@@ -149,12 +149,12 @@ def test_load_prior_errors(tmp_path):
         load_prior(tmp_path)
 
 
-def test_large_setting_is_the_default_with_more_styles_and_steps():
+def test_render_large_setting_is_render_with_more_styles_and_steps():
     from dataclasses import replace
 
     from vid2haircut.prior.train import SETTINGS, config_fingerprint
 
-    large, default = SETTINGS["large"], SETTINGS["default"]
+    large, default = SETTINGS["render_large"], SETTINGS["render"]
     assert large.data.train_seeds == tuple(range(24)) and large.steps == 5000
     assert replace(large, data=replace(large.data, train_seeds=default.data.train_seeds), steps=default.steps) == default
     assert max(large.data.train_seeds) < 1000                      # evaluation seeds stay unseen
@@ -200,5 +200,13 @@ def test_bundled_prior_is_the_default_setting():
 
     rec = json.loads((Path(vid2haircut.__file__).parent / "data/prior/default/prior.json").read_text())
     assert rec["fingerprint"] == config_fingerprint(SETTINGS["default"], rec["seed"])
-    assert "source" not in SETTINGS["default"].to_dict()["data"]["view"]
-    assert SETTINGS["photo"].to_dict()["data"]["view"]["source"] == "photo"
+    assert SETTINGS["default"].to_dict()["data"]["view"]["source"] == "photo"
+    assert "source" not in SETTINGS["render"].to_dict()["data"]["view"]     # direct-render records unchanged
+    assert config_fingerprint(SETTINGS["render"], 0) == "39c5569719b450ee"    # the earlier default's
+    from vid2haircut.prior.views import ViewConfig
+
+    view = ViewConfig.from_dict(rec["config"]["data"]["view"])
+    assert view == SETTINGS["default"].data.view
+    assert ViewConfig.from_dict(SETTINGS["render"].to_dict()["data"]["view"]) == ViewConfig()
+    with pytest.raises(ValueError, match="unknown keys"):
+        ViewConfig.from_dict({"size": 3})

@@ -105,6 +105,31 @@ def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
     assert torch.allclose(g_on[pv], g_off[pv])                            # visible ones keep their gradient
 
 
+def test_anchor_holds_only_the_points_no_keyframe_shows(toy):
+    from vid2haircut.fit.losses import anchor_loss
+
+    pts = torch.zeros(2, 3, 3, requires_grad=True)
+    start = torch.zeros(2, 3, 3)
+    start[0, 2, 0] = 0.01
+    hidden = torch.tensor([[False, False, True], [False, False, False]])
+    loss = anchor_loss(pts, start, hidden)
+    loss.backward()
+    assert float(loss) == pytest.approx(1e-4)                               # (1 cm)^2 over the one hidden point
+    assert torch.count_nonzero(pts.grad.norm(dim=-1)) == 1 and pts.grad[0, 2, 0] < 0
+    assert float(anchor_loss(pts, start, torch.zeros_like(hidden))) == 0.0
+
+    z0, m0 = _start(toy)
+    model = Stage2Model(toy.data, toy.codec, _cfg(weights={"anchor": 1.0}), z0, m0)
+    terms = model.get_loss_dict(0)
+    assert float(terms["anchor"]) == 0.0                                   # starts at the Stage 1 strands
+    hidden = ~model.points_seen.any(0)
+    assert hidden.any() and (~hidden).any()                                # the toy hides some points
+    with torch.no_grad():
+        model.zmap.delta.add_(0.5)
+    assert float(model.get_loss_dict(1)["anchor"]) > 0.0
+    assert "anchor" not in Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+
+
 def test_harmonic_extension_interpolates_between_known_nodes():
     # a path 0-1-2-3-4 with the ends known: the inner nodes interpolate linearly
     pairs = torch.tensor([[0, 1], [1, 2], [2, 3], [3, 4]])

@@ -29,7 +29,7 @@ import torch
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.hairmap import HairMap, decode_dense
 from vid2haircut.prior.model import PriorNet
-from vid2haircut.prior.views import ViewConfig, prior_input, random_pose, render_view
+from vid2haircut.prior.views import ViewConfig, prior_input, random_pose, training_view
 from vid2haircut.strands import StrandSet
 
 __all__ = ["PriorEvalRow", "METHODS", "evaluate_prior", "summarise", "markdown_summary"]
@@ -72,7 +72,9 @@ def evaluate_prior(net: PriorNet, codec: StrandCodec, families: Sequence[str], s
         codec: the prior's codec.
         families, seeds: hairstyles to generate (use seeds outside the training seeds, e.g. >= 1000).
         views_per_style: random views per hairstyle.
-        view_cfg: rendering settings (the training ones by default).
+        view_cfg: how the views are made (:func:`vid2haircut.prior.views.training_view`); pass the
+            prior's own (``ViewConfig.from_dict(record["config"]["data"]["view"])``), as
+            ``benchmarks/prior_eval.py`` does: a prior trained on photo views is scored on photo views.
         strands_per_style: ground-truth strands generated per hairstyle.
         n_dense: dense strands decoded from every predicted map.
         head: head model (default ``get_head("proxy-v1")``).
@@ -102,16 +104,19 @@ def evaluate_prior(net: PriorNet, codec: StrandCodec, families: Sequence[str], s
     rows: list[PriorEvalRow] = []
     jobs = [(fi, f, s, v) for fi, f in enumerate(families) for s in seeds for v in range(views_per_style)]
     bar = tqdm(jobs, desc="prior eval", disable=not progress, leave=False)
-    cache: dict[tuple[str, int], tuple[StrandSet, torch.Tensor]] = {}
+    cache: dict[tuple, Any] = {}
     for fi, fam, s, v in bar:
         if (fam, s) not in cache:
             cache.clear()
             gt = generate_style(fam, s, strands_per_style, codec.n_points, head)
             cache[(fam, s)] = (gt, encode_strands(gt, head, codec, res=res).mask > 0.5)
+            if view_cfg.source == "photo":      # photo views draw a dense copy of the style
+                cache[(fam, s, "photo")] = generate_style(fam, s, view_cfg.photo_strands, codec.n_points, head)
         gt, target_mask = cache[(fam, s)]
+        shown = cache[(fam, s, "photo")].points if view_cfg.source == "photo" else gt.points
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4241, int(s), int(v), fi]))
         pose = random_pose(rng, view_cfg)
-        maps = render_view(gt.points, head, pose, view_cfg, seed=int(rng.integers(2 ** 31)))
+        maps = training_view(shown, head, pose, view_cfg, int(rng.integers(2 ** 31)))
         x = prior_input(*maps.as_tuple(), maps.K, maps.world_2_cam, pose, size=net.cfg.input_size, device=dev)
         with torch.no_grad():
             z, logits = net(x)

@@ -263,6 +263,21 @@ def pca_consistency_loss(z: Tensor, hair: Tensor, observed: Tensor) -> Tensor:
     return (z - zbar)[:, target].pow(2).mean()
 
 
+def anchor_loss(points: Tensor, start: Tensor, hidden: Tensor) -> Tensor:
+    """Hidden points stay where they started: mean |x - x_start|^2 (m^2) over the hidden points.
+
+    Args:
+        points: (N,P,3) current canonical guide points. start: (N,P,3) their starting positions.
+        hidden: (N,P) bool, points that no keyframe shows.
+
+    Returns:
+        Scalar (0 when nothing is hidden).
+    """
+    if not bool(hidden.any()):
+        return points.sum() * 0.0
+    return (points - start).square().sum(-1)[hidden].mean()
+
+
 def motion_loss(offsets: Tensor) -> Tensor:
     """Mean squared offset. offsets: (...,3) metres -> scalar (m^2)."""
     return offsets.pow(2).sum(-1).mean()

@@ -7,6 +7,7 @@ the keyframe's camera ``cam_from_head = world_2_cam @ T_t`` (so ``x_t = T_t(x + 
 
     silhouette + direction + depth (all rendered keyframes) + penetration (canonical and deformed)
     + smoothness of length and direction (canonical) + PCA consistency (unobserved texels)
+    + anchor (guide points that no keyframe shows stay near their Stage 1 positions; optional)
     + canonical (zero offsets in the reference keyframe) + motion + frame-code regularisers.
 
 Switches (``Stage2Config.switches``) remove the deformation, the smoothness, the visibility
@@ -25,13 +26,13 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import (motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses,
+from vid2haircut.fit.losses import (anchor_loss, motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses,
                                     tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer
-from vid2haircut.fit.visibility import VisibilityGate, texel_visible_fraction
+from vid2haircut.fit.visibility import VisibilityGate, point_visibility, texel_visible_fraction
 from vid2haircut.prior.codec import StrandCodec
 
 __all__ = ["Stage2Model", "fit_stage2", "harmonic_extension"]
@@ -90,6 +91,11 @@ class Stage2Model(nn.Module):
                        .to(dev) if cfg.switches.use_deformation else None)
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
+        pr = int(self.layout.render_index.numel())
+        # per keyframe, the guide points of its latest render that it shows (cfg.weights.anchor)
+        self.register_buffer("points_seen", torch.zeros(data.n_frames, n, pr, dtype=torch.bool, device=dev))
+        with torch.no_grad():
+            self.register_buffer("start", decode_layout(z_init, self.layout, codec)[:, self.layout.render_index])
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
         self.register_buffer("follow", torch.zeros(n, dtype=torch.bool, device=dev))
         self._extension: Tensor | None = None
@@ -189,6 +195,7 @@ class Stage2Model(nn.Module):
         self.gate.set_visibility(out.visibility)
         with torch.no_grad():
             self.seen[frames] = texel_visible_fraction(out.visibility).to(self.seen.dtype)
+            self.points_seen[frames] = point_visibility(out.visibility)
             self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames)
@@ -204,6 +211,9 @@ class Stage2Model(nn.Module):
             if cfg.weights.smooth_tip > 0.0:
                 losses["smooth_tip"] = tip_height_loss(canon[:, self.layout.render_index], self.layout.graph,
                                                        cfg.smooth_tip_scale)
+        if cfg.weights.anchor > 0.0:
+            losses["anchor"] = anchor_loss(canon[:, self.layout.render_index], self.start,
+                                           ~self.points_seen.any(0))
         if cfg.switches.use_pca_consistency:
             losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
         if scale > 0.0:

@@ -29,7 +29,7 @@ from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.corpus import (Corpus, build_corpus, generate_style, load_corpus, resolve_families,
                                      save_corpus)
 from vid2haircut.prior.hairmap import encode_strands
-from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, photo_view, prior_input, random_pose, render_view
+from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, prior_input, random_pose, training_view
 
 __all__ = ["DatasetConfig", "PriorDataset", "load_or_build_corpus", "build_dataset", "recipe_hash"]
 
@@ -140,12 +140,7 @@ def _render_inputs(corpus: Corpus, head: Any, cfg: DatasetConfig, input_size: in
             ss = np.random.SeedSequence([int(seed), 7919, i, v])
             rng = np.random.default_rng(ss)
             pose = random_pose(rng, cfg.view)
-            view_seed = int(rng.integers(2 ** 31))
-            if photo:
-                dist = float(np.random.default_rng(view_seed).uniform(*cfg.view.distance_m))
-                maps = photo_view(pts, head, pose, cfg.view, distance=dist)
-            else:
-                maps = render_view(pts, head, pose, cfg.view, seed=view_seed)
+            maps = training_view(pts, head, pose, cfg.view, int(rng.integers(2 ** 31)))
             x = prior_input(*maps.as_tuple(), maps.K, maps.world_2_cam, pose, size=input_size)
             inputs[i * n_views + v] = x[0].numpy().astype(np.float16)
             bar.update(1)

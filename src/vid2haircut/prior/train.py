@@ -93,20 +93,22 @@ class TrainConfig:
 
 
 SETTINGS: dict[str, TrainConfig] = {
-    "default": TrainConfig(),
+    "default": TrainConfig(data=DatasetConfig(view=ViewConfig(source="photo"))),
     "tiny": TrainConfig(
         model=PriorConfig.tiny(),
         data=DatasetConfig(families=("bob", "long_straight"), train_seeds=(0, 1), strands_per_style=300,
                            views_per_style=2, view=ViewConfig(render_size=64, render_strands=300,
                                                               render_points=12, strand_width=4e-3)),
         steps=150, batch=4, lr=3e-3, warmup=10, n_texels=32, shift_px=2),
-    "large": TrainConfig(data=DatasetConfig(train_seeds=tuple(range(24))), steps=5000),
-    "photo": TrainConfig(data=DatasetConfig(view=ViewConfig(source="photo"))),
+    "render": TrainConfig(),
+    "render_large": TrainConfig(data=DatasetConfig(train_seeds=tuple(range(24))), steps=5000),
 }
-"""Named settings of ``train_prior``: ``default`` (the committed prior), ``tiny`` (tests) and
-``large`` (3x the hairstyles, 2x the steps; 17 min on one core, measured in the README) and
-``photo`` (the default trained on views made like the pipeline's targets: photo, hair coverage,
-Gabor orientation; :func:`vid2haircut.prior.views.photo_view`)."""
+"""Named settings of ``train_prior``: ``default`` (the committed prior: training views made like
+the pipeline's targets, i.e. a photo of a dense copy of the style turned into hair coverage, Gabor
+orientation and relative depth, :func:`vid2haircut.prior.views.photo_view`), ``tiny`` (tests),
+``render`` (the same but trained on direct renders of the strands, :func:`vid2haircut.prior.views.render_view`;
+the default before it, kept to measure the gap) and ``render_large`` (``render`` with 3x the
+hairstyles and 2x the steps). The README's prior and quality sections give their measured effect."""
 
 
 def config_fingerprint(cfg: TrainConfig, seed: int) -> str:

@@ -25,7 +25,7 @@ Example::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
 
 import cv2
@@ -161,6 +161,16 @@ class ViewConfig:
     def __post_init__(self) -> None:
         if self.source not in ("render", "photo"):
             raise ValueError(f"ViewConfig.source must be 'render' or 'photo', got {self.source!r}")
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> "ViewConfig":
+        """Inverse of the ``view`` entry of a prior's training record (``prior.json``; keys that a
+        direct-render record leaves out take their defaults, unknown keys are an error)."""
+        known = {f.name for f in fields(ViewConfig)}
+        extra = sorted(set(d) - known)
+        if extra:
+            raise ValueError(f"ViewConfig: unknown keys {extra}")
+        return ViewConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
 class ViewMaps(NamedTuple):
@@ -302,3 +312,15 @@ def photo_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg: 
     valid = (mask >= 0.5) & np.isfinite(fr.hair_depth)
     depth = relative_depth_quantile(np.nan_to_num(fr.hair_depth), valid)
     return ViewMaps(mask, np.asarray(om.angle, np.float32), depth, valid, K, w2c)
+
+
+def training_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg: ViewConfig,
+                  view_seed: int) -> ViewMaps:
+    """One view as the prior is trained on it: :func:`photo_view` when ``cfg.source`` is "photo"
+    (``points`` should then be the dense copy of the style, ``cfg.photo_strands`` strands; the
+    camera distance is drawn from ``cfg.distance_m`` with ``view_seed``), else :func:`render_view`
+    (``view_seed`` also picks the strand subset)."""
+    if cfg.source == "photo":
+        dist = float(np.random.default_rng(view_seed).uniform(*cfg.distance_m))
+        return photo_view(points, head, world_from_head, cfg, distance=dist)
+    return render_view(points, head, world_from_head, cfg, seed=view_seed)
