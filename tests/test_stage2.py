@@ -127,7 +127,7 @@ def test_anchor_holds_only_the_points_no_keyframe_shows(toy):
     with torch.no_grad():
         model.zmap.delta.add_(0.5)
     assert float(model.get_loss_dict(1)["anchor"]) > 0.0
-    assert "anchor" not in Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    assert "anchor" not in Stage2Model(toy.data, toy.codec, _cfg(weights={"anchor": 0.0}), z0, m0).get_loss_dict(0)
 
 
 def test_harmonic_extension_interpolates_between_known_nodes():
