@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -35,6 +36,9 @@ def main() -> int:
     ap.add_argument("--strands", type=int, default=1500, help="ground-truth strands per hairstyle")
     ap.add_argument("--dense", type=int, default=2000, help="dense strands decoded per prediction")
     ap.add_argument("--threads", type=int, default=1, help="torch CPU threads")
+    ap.add_argument("--view-source", choices=["recorded", "render", "photo"], default="recorded",
+                    help="how the test views are made: as the prior was trained (recorded), or as direct "
+                         "renders / photo-like views whatever the training (to compare priors on the same inputs)")
     ap.add_argument("--out", type=Path, default=None, help="write the Markdown report here (+ .json rows)")
     args = ap.parse_args()
 
@@ -43,14 +47,17 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     net, codec, record = load_prior(args.prior_dir)
     fams = args.families or list(FAMILIES)
+    view_cfg = ViewConfig.from_dict(record["config"]["data"]["view"])
+    if args.view_source != "recorded":
+        view_cfg = replace(view_cfg, source=args.view_source)
     t0 = time.perf_counter()
-    rows = evaluate_prior(net, codec, fams, args.seeds, views_per_style=args.views, view_cfg=ViewConfig.from_dict(record["config"]["data"]["view"]),
+    rows = evaluate_prior(net, codec, fams, args.seeds, views_per_style=args.views, view_cfg=view_cfg,
                           strands_per_style=args.strands, n_dense=args.dense)
     elapsed = time.perf_counter() - t0
     table = summarise(rows)
     wins = sum(r.chamfer["prior"] < r.chamfer["mean_hairstyle"] for r in rows)
     report = "\n".join([
-        f"# Learned prior on unseen views (seeds {args.seeds}, {args.views} views each)", "",
+        f"# Learned prior on unseen views (seeds {args.seeds}, {args.views} views each, {view_cfg.source} views)", "",
         f"Prior `{args.prior_dir.name}` (fingerprint {record.get('fingerprint')}, trained on "
         f"{record.get('corpus', {}).get('n_styles')} styles / {record.get('corpus', {}).get('n_views')} views). "
         f"Chamfer_pts in 1e-4 m^2 (lower is better), {args.dense} dense strands decoded per map vs "
