@@ -336,12 +336,17 @@ def main(argv: list[str] | None = None) -> int:
             f"Mean fit time per variant (this machine): {timing}\n")
     if len(seeds) > 1:
         text += "\n" + seed_table(per_seed, names, [v for v in variants if v in SEEDED_VARIANTS], seeds) + "\n"
+    emit(text, args.out)
+    return 0
+
+
+def emit(text: str, out: str | None) -> None:
+    """Print a report and also write it (atomically) to ``out`` when given."""
     print(text)
-    if args.out:
+    if out:
         from vid2haircut.io.atomic import write_text
 
-        write_text(args.out, text)
-    return 0
+        write_text(out, text)
 
 
 if __name__ == "__main__":

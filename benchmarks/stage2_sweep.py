@@ -140,11 +140,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(f"| {s} | " + " | ".join(cells) + f" | {np.mean([m['chamfer_pts'] for m in ms]) * 1e4:.3f} | "
                     f"{np.mean([m['chamfer_angle'] for m in ms]):.4f} | " + " | ".join(f"{r:.3f}" for r in reg) + " |")
     text = "Stage 2 sweep, Chamfer_pts (1e-4 m^2) per sequence\n\n" + "\n".join(rows) + "\n"
-    print(text)
-    if args.out:
-        from vid2haircut.io.atomic import write_text
-
-        write_text(args.out, text)
+    quality.emit(text, args.out)
     return 0
 
 
