@@ -79,16 +79,23 @@ QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_s
 log = logging.getLogger("quality")
 
 
+def seq_files(work: Path, subject: str) -> dict:
+    """Where a sequence of a work folder and its front-stage outputs live (the dict :func:`prepare` returns)."""
+    front = work / "front" / subject
+    return {"root": work / "data", "subject": subject, "keyframes": front / "keyframes.json",
+            "head": front / "head.npz", "targets": front / "targets",
+            "gt": work / "data" / subject / "sequences" / "HAIR" / "ground_truth" / "strands.npz"}
+
+
 def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN,
             head_fill: float = HEAD_FILL) -> dict:
     """Synthesise one sequence and run the front stages (cached)."""
     from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
     from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
 
-    root, subject = work / "data", f"{family}_{seed}"
-    seq_dir = root / subject / "sequences" / "HAIR"
-    front = work / "front" / subject
-    meta = seq_dir / "ground_truth" / "meta.json"
+    seq = seq_files(work, f"{family}_{seed}")
+    root, subject, front = seq["root"], seq["subject"], seq["keyframes"].parent
+    meta = seq["gt"].with_name("meta.json")
     if meta.is_file():
         cached = json.loads(meta.read_text())
         for key, have, want in (("sway_gain", cached["motion"].get("sway_gain"), sway_gain),
@@ -105,8 +112,7 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
         run_fit_head(root, subject, "HAIR", front / "keyframes.json", front)
     if not (front / "targets" / "targets.json").is_file():
         run_targets(root, subject, "HAIR", front / "head.npz", front / "targets")
-    return {"root": root, "subject": subject, "keyframes": front / "keyframes.json", "head": front / "head.npz",
-            "targets": front / "targets", "gt": seq_dir / "ground_truth" / "strands.npz"}
+    return seq
 
 
 def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:

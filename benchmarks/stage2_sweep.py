@@ -37,12 +37,6 @@ import quality  # noqa: E402  (the benchmark's sequence layout and scoring)
 KEEP = ("hairmap.npz", "stage2.json")
 
 
-def _seq(work: Path, name: str) -> dict:
-    front = work / "front" / name
-    return {"root": work / "data", "subject": name, "keyframes": front / "keyframes.json", "head": front / "head.npz",
-            "targets": front / "targets", "gt": work / "data" / name / "sequences" / "HAIR" / "ground_truth" / "strands.npz"}
-
-
 def _run_one(job: tuple) -> tuple[str, str, float]:
     work, name, setting, over, device, threads = job
     import torch
@@ -50,7 +44,7 @@ def _run_one(job: tuple) -> tuple[str, str, float]:
     torch.set_num_threads(threads)
     from vid2haircut.fit.pipeline import run_stage2
 
-    seq = _seq(Path(work), name)
+    seq = quality.seq_files(Path(work), name)
     out = Path(work) / "sweep" / name / setting
     if not (out / "stage2.json").is_file():
         t0 = time.perf_counter()
@@ -65,7 +59,8 @@ def pack(work: Path, dest: Path, names: list[str]) -> None:
     for n in names:
         cal = Path("data") / n / "calibration" / "camera_params.json"
         files = [cal, Path("front") / n / "keyframes.json", Path("front") / n / "head.npz"]
-        files += [p.relative_to(work) for p in (work / "front" / n / "targets").iterdir() if p.suffix in (".npz", ".json")]
+        files += [p.relative_to(work) for p in (work / "front" / n / "targets").iterdir()
+                  if p.suffix in (".npz", ".json")]
         files += [Path("runs") / n / "stage1" / f for f in ("hairmap.npz", "codec.npz", "stage1.json")]
         for f in files:
             (dest / f).parent.mkdir(parents=True, exist_ok=True)
@@ -82,7 +77,7 @@ def decoded(work: Path, name: str, setting: str) -> Path:
     out = work / "sweep" / name / setting
     path = out / "strands.npz"
     if not path.is_file():
-        seq = _seq(work, name)
+        seq = quality.seq_files(work, name)
         data = load_fit_data(seq["root"], name, seq["keyframes"], seq["head"], seq["targets"], n_keyframes=1,
                              occlude_head=False)
         z, mask, _ = load_hairmap(out / "hairmap.npz")
@@ -133,8 +128,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = ["| setting | " + " | ".join(names) + " | mean CD_pts | mean CD_angle | front | side | back |",
             "|---" * (len(names) + 6) + "|"]
     for s in grid:
-        ms = [quality.score(decoded(work, n, s), _seq(work, n)["gt"], work / "sweep" / n / s / "metrics.json")
-              for n in names]
+        ms = [quality.score(decoded(work, n, s), quality.seq_files(work, n)["gt"],
+                            work / "sweep" / n / s / "metrics.json") for n in names]
         cells = [f"{m['chamfer_pts'] * 1e4:.3f}" for m in ms]
         reg = [np.mean([m[f"chamfer_pts_{r}"] for m in ms]) * 1e4 for r in ("front", "side", "back")]
         rows.append(f"| {s} | " + " | ".join(cells) + f" | {np.mean([m['chamfer_pts'] for m in ms]) * 1e4:.3f} | "

@@ -197,14 +197,13 @@ def test_bundled_prior_is_the_default_setting():
     default` rebuilds it, and new, unused config fields do not silently change the default)."""
     import vid2haircut
     from vid2haircut.prior.train import SETTINGS, config_fingerprint
+    from vid2haircut.prior.views import ViewConfig
 
     rec = json.loads((Path(vid2haircut.__file__).parent / "data/prior/default/prior.json").read_text())
     assert rec["fingerprint"] == config_fingerprint(SETTINGS["default"], rec["seed"])
     assert SETTINGS["default"].to_dict()["data"]["view"]["source"] == "photo"
     assert "source" not in SETTINGS["render"].to_dict()["data"]["view"]     # direct-render records unchanged
     assert config_fingerprint(SETTINGS["render"], 0) == "39c5569719b450ee"    # the earlier default's
-    from vid2haircut.prior.views import ViewConfig
-
     view = ViewConfig.from_dict(rec["config"]["data"]["view"])
     assert view == SETTINGS["default"].data.view
     assert ViewConfig.from_dict(SETTINGS["render"].to_dict()["data"]["view"]) == ViewConfig()

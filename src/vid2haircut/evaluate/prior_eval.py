@@ -29,7 +29,7 @@ import torch
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.hairmap import HairMap, decode_dense
 from vid2haircut.prior.model import PriorNet
-from vid2haircut.prior.views import ViewConfig, prior_input, random_pose, training_view
+from vid2haircut.prior.views import ViewConfig, prior_input, random_pose, training_view, view_strands
 from vid2haircut.strands import StrandSet
 
 __all__ = ["PriorEvalRow", "METHODS", "evaluate_prior", "summarise", "markdown_summary"]
@@ -104,16 +104,14 @@ def evaluate_prior(net: PriorNet, codec: StrandCodec, families: Sequence[str], s
     rows: list[PriorEvalRow] = []
     jobs = [(fi, f, s, v) for fi, f in enumerate(families) for s in seeds for v in range(views_per_style)]
     bar = tqdm(jobs, desc="prior eval", disable=not progress, leave=False)
-    cache: dict[tuple, Any] = {}
+    cache: dict[tuple[str, int], tuple[StrandSet, torch.Tensor, np.ndarray]] = {}
     for fi, fam, s, v in bar:
         if (fam, s) not in cache:
             cache.clear()
             gt = generate_style(fam, s, strands_per_style, codec.n_points, head)
-            cache[(fam, s)] = (gt, encode_strands(gt, head, codec, res=res).mask > 0.5)
-            if view_cfg.source == "photo":      # photo views draw a dense copy of the style
-                cache[(fam, s, "photo")] = generate_style(fam, s, view_cfg.photo_strands, codec.n_points, head)
-        gt, target_mask = cache[(fam, s)]
-        shown = cache[(fam, s, "photo")].points if view_cfg.source == "photo" else gt.points
+            cache[(fam, s)] = (gt, encode_strands(gt, head, codec, res=res).mask > 0.5,
+                               view_strands(gt.points, fam, s, view_cfg, codec.n_points, head))
+        gt, target_mask, shown = cache[(fam, s)]
         rng = np.random.default_rng(np.random.SeedSequence([int(seed), 4241, int(s), int(v), fi]))
         pose = random_pose(rng, view_cfg)
         maps = training_view(shown, head, pose, view_cfg, int(rng.integers(2 ** 31)))

@@ -26,10 +26,10 @@ import torch
 
 from vid2haircut.io.atomic import write_npz
 from vid2haircut.prior.codec import StrandCodec
-from vid2haircut.prior.corpus import (Corpus, build_corpus, generate_style, load_corpus, resolve_families,
-                                     save_corpus)
+from vid2haircut.prior.corpus import Corpus, build_corpus, load_corpus, resolve_families, save_corpus
 from vid2haircut.prior.hairmap import encode_strands
-from vid2haircut.prior.views import INPUT_CHANNELS, ViewConfig, prior_input, random_pose, training_view
+from vid2haircut.prior.views import (INPUT_CHANNELS, ViewConfig, prior_input, random_pose, training_view,
+                                    view_strands)
 
 __all__ = ["DatasetConfig", "PriorDataset", "load_or_build_corpus", "build_dataset", "recipe_hash"]
 
@@ -130,12 +130,9 @@ def _render_inputs(corpus: Corpus, head: Any, cfg: DatasetConfig, input_size: in
     inputs = np.zeros((n_styles * n_views, len(INPUT_CHANNELS), input_size, input_size), np.float16)
     style = np.repeat(np.arange(n_styles), n_views)
     bar = tqdm(total=n_styles * n_views, desc="prior views", disable=not progress, leave=False)
-    photo = cfg.view.source == "photo"
     for i in range(n_styles):
-        pts = corpus.strand_set(i).points
-        if photo:
-            family, style_seed = corpus.styles[i]
-            pts = generate_style(family, int(style_seed), cfg.view.photo_strands, cfg.n_points, head).points
+        family, style_seed = corpus.styles[i]
+        pts = view_strands(corpus.strand_set(i).points, family, style_seed, cfg.view, cfg.n_points, head)
         for v in range(n_views):
             ss = np.random.SeedSequence([int(seed), 7919, i, v])
             rng = np.random.default_rng(ss)

@@ -314,10 +314,22 @@ def photo_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg: 
     return ViewMaps(mask, np.asarray(om.angle, np.float32), depth, valid, K, w2c)
 
 
+def view_strands(points: np.ndarray, family: str, seed: int, cfg: ViewConfig, n_points: int,
+                 head: Any) -> np.ndarray:
+    """(N,P,3) strands that the views of one generated style draw: ``points`` themselves for direct
+    renders, a dense copy of the style (family, seed) with ``cfg.photo_strands`` strands for photo
+    views (a photo draws every strand, as the synthetic sequences' 10k-strand hair)."""
+    if cfg.source != "photo":
+        return points
+    from vid2haircut.prior.corpus import generate_style
+
+    return generate_style(family, int(seed), cfg.photo_strands, n_points, head).points
+
+
 def training_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg: ViewConfig,
                   view_seed: int) -> ViewMaps:
     """One view as the prior is trained on it: :func:`photo_view` when ``cfg.source`` is "photo"
-    (``points`` should then be the dense copy of the style, ``cfg.photo_strands`` strands; the
+    (``points`` from :func:`view_strands`; the
     camera distance is drawn from ``cfg.distance_m`` with ``view_seed``), else :func:`render_view`
     (``view_seed`` also picks the strand subset)."""
     if cfg.source == "photo":
