@@ -11,7 +11,9 @@ then the fitting variants through the same file-level entry points as the pipeli
   prediction, ``stage1_ft`` fine-tunes the prior network as published),
 - ``stage2``: the full method (6 keyframes), and the ablations ``no_deformation``,
   ``no_smoothness``, ``no_visibility``, ``no_pca``, ``kf1``, ``kf3`` (these start from the default
-  Stage 1), and ``stage2_ft`` (the full method started from ``stage1_ft``; not in the default list).
+  Stage 1), ``stage2_ft`` (the full method started from ``stage1_ft``) and ``stage2_oracle`` (the
+  full method started from ``oracle``: how far the Stage 2 objective moves the truth, and which
+  final loss the truth reaches against the fits; neither is in the default list).
 
 Each result is scored against the ground truth (Chamfer_pts in m^2, Chamfer_angle in rad; see
 ``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given),
@@ -55,9 +57,10 @@ STAGE2_VARIANTS = {
     "kf1": {"n_keyframes": 1},
     "kf3": {"n_keyframes": 3},
     "stage2_ft": {},
+    "stage2_oracle": {},
 }
 SEEDED_VARIANTS = ["stage2", "no_deformation", "no_smoothness", "no_visibility", "no_pca"]  # run per --stage2-seeds
-STAGE2_FROM = {"stage2_ft": "stage1_ft"}  # Stage 2 variants that start from another Stage 1 variant
+STAGE2_FROM = {"stage2_ft": "stage1_ft", "stage2_oracle": "oracle"}  # Stage 2 variants started elsewhere
 STAGE1_VARIANTS = {
     "stage1": {},
     # the published Im2Haircut recipe: fine-tune the prior network (AdamW 1e-4, wd 1e-3), penetration 0.3
@@ -71,7 +74,8 @@ LABELS = {"oracle": "Ground truth encoded in the hair map (representation floor)
           "stage2": "**Stage 2 (Vid2Haircut, 6 keyframes)**", "no_deformation": "Stage 2 w/o deformation MLP",
           "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
           "no_pca": "Stage 2 w/o PCA consistency", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes",
-          "stage2_ft": "Stage 2 (6 keyframes) started from the fine-tuned Stage 1"}
+          "stage2_ft": "Stage 2 (6 keyframes) started from the fine-tuned Stage 1",
+          "stage2_oracle": "Stage 2 (6 keyframes) started from the ground truth encoded in the hair map"}
 HEAD_FILL = 0.6  # fraction of the image height the head (crown to neck) fills (the generator's default)
 SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
@@ -135,20 +139,24 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
 
 def oracle_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
     """Dense strands of the ground truth encoded into the hair map (cached): each texel holds the
-    codec coefficients of its nearest ground-truth strand, decoded like every fit's output."""
+    codec coefficients of its nearest ground-truth strand, decoded like every fit's output. The
+    hair map and codec are written next to them (``hairmap.npz``, ``codec.npz``), so Stage 2 can
+    start from them like from a Stage 1 folder."""
     from vid2haircut.fit.data import load_fit_data
-    from vid2haircut.fit.outputs import dense_strands
+    from vid2haircut.fit.outputs import dense_strands, write_hairmap
     from vid2haircut.io.strand_formats import load_strands, save_strands
     from vid2haircut.prior.hairmap import encode_strands
     from vid2haircut.prior.model import load_prior
 
     path = out / "strands.npz"
-    if not path.is_file():
+    if not (path.is_file() and (out / "hairmap.npz").is_file()):
         data = load_fit_data(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"],
                              n_keyframes=1, occlude_head=False)
         _, codec, _ = load_prior(prior_dir)
         hm = encode_strands(load_strands(seq["gt"]), data.head, codec, res=32)
         save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model))
+        write_hairmap(out / "hairmap.npz", hm.z, hm.mask, codec.fingerprint(), data.head_model)
+        codec.save(out / "codec.npz")
     return path
 
 
@@ -172,7 +180,7 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
         else:
             base = STAGE2_FROM.get(name, "stage1")
             s1 = work / "runs" / seq["subject"] / base
-            if not (s1 / "stage1.json").is_file():
+            if not (s1 / "hairmap.npz").is_file():
                 run_variant(seq, base, work, prior_dir, settings)
             over = _merge(settings.get("stage2", {}), STAGE2_VARIANTS[name])
             if seed:
@@ -232,6 +240,40 @@ def tip_table(results: dict, seqs: list[str], variants: list[str]) -> str:
         parts = [np.nanmean([m[f"tip_dy_{r}"] for m in ms]) * 100 for r in ("front", "side", "back")]
         lines.append(f"| {LABELS[v]} | " + " | ".join(f"{x:+.1f}" for x in parts) + " |")
     return "\n".join(lines)
+
+
+# Stage 2 variants whose final loss sums the same terms over the same keyframes as the full method's
+SAME_OBJECTIVE = ["stage2", "stage2_ft", "stage2_oracle", "no_deformation", "no_visibility"]
+IMAGE_TERMS = ("silhouette", "direction", "depth")
+
+
+def loss_table(work: Path, seqs: list[str], variants: list[str]) -> str:
+    """Markdown: the final weighted Stage 2 loss (seed 0) of each Stage 2 variant per sequence, as
+    image terms (silhouette, direction, depth) / all terms, read from its ``stage2.json``; with
+    ``stage2_oracle`` it shows whether the truth ends lower than the fits, i.e. whether the objective
+    separates them, and which part of it does not."""
+    rows = []
+    for v in variants:
+        if v not in SAME_OBJECTIVE:
+            continue
+        recs = [work / "runs" / s / v / "stage2.json" for s in seqs]
+        if not all(r.is_file() for r in recs):
+            continue
+        cells, img_all, tot_all = [], [], []
+        for r in recs:
+            rec = json.loads(r.read_text())
+            w, terms = rec["config"]["weights"], rec["history"]["terms"]
+            img = sum(w[k] * terms[k][-1] for k in IMAGE_TERMS)
+            tot = rec["history"]["total"][-1]
+            cells.append(f"{img:.4f} / {tot:.4f}")
+            img_all.append(img)
+            tot_all.append(tot)
+        rows.append(f"| {LABELS[v]} | " + " | ".join(cells) + f" | {np.mean(img_all):.4f} / {np.mean(tot_all):.4f} |")
+    if not rows:
+        return ""
+    return ("Final weighted Stage 2 loss (6 keyframes, seed 0), image terms / all terms, lower is better for "
+            "the optimiser:\n\n| method | " + " | ".join(seqs) + " | mean |\n|" + "---|" * (len(seqs) + 2)
+            + "\n" + "\n".join(rows))
 
 
 def seed_table(per_seed: dict, seqs: list[str], variants: list[str], seeds: list[int]) -> str:
@@ -340,6 +382,9 @@ def main(argv: list[str] | None = None) -> int:
             f"the sequences; positive = the hair ends too high, i.e. is too short):\n\n"
             f"{tip_table(results, names, variants)}\n\n"
             f"Mean fit time per variant (this machine): {timing}\n")
+    losses = loss_table(work, names, variants)
+    if losses:
+        text += "\n" + losses + "\n"
     if len(seeds) > 1:
         text += "\n" + seed_table(per_seed, names, [v for v in variants if v in SEEDED_VARIANTS], seeds) + "\n"
     emit(text, args.out)
