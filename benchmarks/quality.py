@@ -92,8 +92,9 @@ def seq_files(work: Path, subject: str) -> dict:
 
 
 def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN,
-            head_fill: float = HEAD_FILL) -> dict:
-    """Synthesise one sequence and run the front stages (cached)."""
+            head_fill: float = HEAD_FILL, n_keyframes: int = 6) -> dict:
+    """Synthesise one sequence and run the front stages (cached) with ``n_keyframes`` keyframes."""
+    from vid2haircut.front.keyframes import KeyframeConfig
     from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
     from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
 
@@ -111,7 +112,11 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
                                                                sway_gain=sway_gain, head_fill=head_fill),
                             overwrite=True)
     if not (front / "keyframes.json").is_file():
-        run_keyframes(root, subject, "HAIR", front)
+        run_keyframes(root, subject, "HAIR", front, cfg=KeyframeConfig(num_keyframes=n_keyframes))
+    have = len(json.loads((front / "keyframes.json").read_text())["frames"])
+    if have != n_keyframes:
+        raise SystemExit(f"{front / 'keyframes.json'}: cached front stages have {have} keyframes, not "
+                         f"{n_keyframes}; use another --work")
     if not (front / "head.npz").is_file():
         run_fit_head(root, subject, "HAIR", front / "keyframes.json", front)
     if not (front / "targets" / "targets.json").is_file():
@@ -271,7 +276,7 @@ def loss_table(work: Path, seqs: list[str], variants: list[str]) -> str:
         rows.append(f"| {LABELS[v]} | " + " | ".join(cells) + f" | {np.mean(img_all):.4f} / {np.mean(tot_all):.4f} |")
     if not rows:
         return ""
-    return ("Final weighted Stage 2 loss (6 keyframes, seed 0), image terms / all terms, lower is better for "
+    return ("Final weighted Stage 2 loss (seed 0), image terms / all terms, lower is better for "
             "the optimiser:\n\n| method | " + " | ".join(seqs) + " | mean |\n|" + "---|" * (len(seqs) + 2)
             + "\n" + "\n".join(rows))
 
@@ -333,6 +338,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--head-fill", type=float, default=HEAD_FILL,
                    help="fraction of the image height that the head fills (SynthConfig.head_fill; smaller "
                         "shows more of long hair, which runs off the bottom of the image at the default)")
+    p.add_argument("--keyframes", type=int, default=6,
+                   help="keyframes the front stages select (KeyframeConfig.num_keyframes); Stage 2 uses "
+                        "Stage2Config.n_keyframes of them (set it with --settings)")
     p.add_argument("--quick", action="store_true", help="2 sequences, short schedules")
     p.add_argument("--stage2-seeds", default="0",
                    help="comma-separated Stage 2 seeds; the full method and its four switch ablations are "
@@ -349,6 +357,10 @@ def main(argv: list[str] | None = None) -> int:
     prior_dir = Path(args.prior_dir) if args.prior_dir else Path(vid2haircut.__file__).parent / "data/prior/default"
     work = Path(args.work)
     settings = json.loads(args.settings) if args.settings else (QUICK if args.quick else {})
+    n_kf = settings.get("stage2", {}).get("n_keyframes", 6)
+    if n_kf != 6:  # the labels name the keyframe count of the full method
+        for v in ("stage2", "stage2_ft", "stage2_oracle"):
+            LABELS[v] = LABELS[v].replace("6 keyframes", f"{n_kf} keyframes")
     pool = {f"{f}_{s}": (f, s) for f, s in SEQUENCES}
     names = args.sequences.split(",") if args.sequences else list(pool)[: 2 if args.quick else 4]
     variants = args.variants.split(",")
@@ -358,7 +370,7 @@ def main(argv: list[str] | None = None) -> int:
         if name not in pool:
             raise SystemExit(f"unknown sequence {name!r}; known: {sorted(pool)}")
         t0 = time.perf_counter()
-        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill)
+        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
         for v in variants:
             ms, secs = [], []
