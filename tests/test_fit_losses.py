@@ -292,3 +292,38 @@ def test_extend_map_and_push_out_of_head():
     out = push_out_of_head(pts, Sphere(), margin=1e-3)
     assert torch.equal(out[:, 0], pts[:, 0]) and torch.equal(out[0, 2], pts[0, 2])
     assert float(Sphere.sdf(out[0, 1])) == pytest.approx(1e-3, abs=1e-5)
+
+
+def _arc(radius: float, length: float, n: int = 50) -> torch.Tensor:
+    """(n,3) points on a circle of ``radius`` over an arc of ``length`` (metres)."""
+    t = torch.linspace(0.0, length / radius, n, dtype=torch.float64)
+    return torch.stack([radius * torch.sin(t), radius * (1 - torch.cos(t)), torch.zeros_like(t)], -1)
+
+
+def test_bend_loss_counts_only_bends_tighter_than_the_radius():
+    from vid2haircut.fit.losses import bend_loss
+
+    straight = torch.stack([torch.linspace(0, 0.2, 50, dtype=torch.float64)] + [torch.zeros(50, dtype=torch.float64)] * 2, -1)
+    assert float(bend_loss(straight, 0.003)) == 0.0
+    assert float(bend_loss(_arc(0.02, 0.05), 0.003)) == 0.0            # a 2 cm wave: left alone
+    tight = bend_loss(_arc(0.001, 0.02, 200), 0.003)                     # a 1 mm coil
+    assert float(tight) > 0.0
+    # one turn of theta per segment of length l: |du|^2 = 2 (1 - cos theta), allowed (l / r)^2
+    l, theta = 0.0005, 0.3
+    d = torch.tensor([[l, 0.0, 0.0], [l * math.cos(theta), l * math.sin(theta), 0.0]], dtype=torch.float64)
+    pts = torch.cat([torch.zeros(1, 3, dtype=torch.float64), d.cumsum(0)])
+    expect = 2 * (1 - math.cos(theta)) - (l / 0.003) ** 2
+    assert float(bend_loss(pts, 0.003)) == pytest.approx(expect, rel=1e-9)
+    # a millimetre zigzag is penalised and its gradient straightens it; a straight strand has none
+    zig = straight.clone() * 0.1                                           # a 2 cm strand, 0.4 mm segments
+    zig[1::2, 1] = 0.0002
+    zig.requires_grad_(True)
+    before = bend_loss(zig, 0.003)
+    before.backward()
+    with torch.no_grad():
+        after = bend_loss(zig - 1e-8 * zig.grad, 0.003)
+        amp = (zig - 1e-8 * zig.grad)[1:-1, 1].std()
+    assert float(before) > 0.1 and float(after) < float(before) and float(amp) < float(zig[1:-1, 1].std())
+    s = straight.clone().requires_grad_(True)
+    bend_loss(s, 0.003).backward()
+    assert torch.isfinite(s.grad).all() and float(s.grad.abs().max()) == 0.0

@@ -55,6 +55,17 @@ class LossWeights:
     Chamfer_pts 0.026 -> 0.047, 1e-4 m^2) and short side hair stood off the head. Measured with
     ``benchmarks/stage2_sweep.py`` (seed 0, bob / short / side-parted / wavy, mean Chamfer_pts):
     0 gives 0.130, 100 gives 0.126, 1000 gives 0.104, 10000 gives 0.112 (Stage 1: 0.127)."""
+    bend: float = 10.0
+    """Strands bend no tighter than ``min_bend_radius`` (:func:`vid2haircut.fit.losses.bend_loss`, on
+    the full-resolution guides, both stages; not published). The images at the fitting resolution
+    cannot see millimetre kinks, and the prior decodes short strands with them: on the short style
+    the Stage 2 strands turned 14 degrees per segment (100 points; the ground truth 0.7) and 76% of
+    their segments bent tighter than 3 mm (ground truth 0.1%). Measured with
+    ``benchmarks/stage2_sweep.py`` (Stage 2 only, seed 0, bob / short / side-parted / wavy / bangs,
+    mean Chamfer_pts 1e-4 m^2 / Chamfer_angle rad): off 0.114 / 0.293; weight 1 0.113 / 0.273;
+    weight 10 0.113 / 0.266 (short 0.529 -> 0.406 rad, bangs 0.154 -> 0.147 in Chamfer_pts);
+    weight 10 with a 10 mm radius 0.115 / 0.265; weight 100 with 5 mm 0.170 (short and bangs
+    collapse)."""
     canonical: float = 1.0e4
     """Offsets of the reference (canonical) keyframe pushed to zero, mean |dx|^2 in m^2 (method.md: 1e4)."""
     motion: float = 1.0e-6
@@ -135,12 +146,14 @@ class Stage1Config:
     ``benchmarks/quality.py`` (6 sequences, 2 Stage 2 seeds): 1 mm lowers Chamfer_pts of Stage 1
     from 0.292 to 0.272 and of Stage 2 from 0.198 to 0.192 (1e-4 m^2); 2 mm made Stage 2 worse on
     the shoulder-length and short styles."""
+    min_bend_radius: float = 0.003
+    """Tightest bend (metres) that :attr:`LossWeights.bend` leaves alone."""
     map_res: int = 32
     """Hair map resolution R when there is no prior (with a prior: the network's)."""
     mask_threshold: float = 0.5
     """Texels whose baldness-mask value reaches this carry a guide strand."""
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01))
-    """Loss weights (Stage 1 uses silhouette, direction, depth and penetration only; depth 0.01 as
+    """Loss weights (Stage 1 uses silhouette, direction, depth, penetration and bend only; depth 0.01 as
     Im2Haircut, penetration 1e4 as Vid2Haircut: Im2Haircut's 0.3 leaves strands inside the head)."""
     render: RenderSettings = field(default_factory=RenderSettings)
     """Guide rendering settings."""
@@ -199,6 +212,8 @@ class Stage2Config:
     smooth_direction_scale: float = 0.1
     """Edge-preserving scale of the direction smoothness on 1 - cos (a parting is not pulled
     together; 0 = plain)."""
+    min_bend_radius: float = 0.003
+    """Tightest bend (metres) that :attr:`LossWeights.bend` leaves alone."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

@@ -34,7 +34,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
-           "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss", "quantile_normalize"]
+           "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss", "quantile_normalize",
+           "anchor_loss", "bend_loss"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -276,6 +277,27 @@ def anchor_loss(points: Tensor, start: Tensor, hidden: Tensor) -> Tensor:
     if not bool(hidden.any()):
         return points.sum() * 0.0
     return (points - start).square().sum(-1)[hidden].mean()
+
+
+def bend_loss(points: Tensor, min_radius: float) -> Tensor:
+    """Strands bend no tighter than ``min_radius``: the mean over interior points of
+    relu(|u_{i+1} - u_i|^2 - (l_i / r)^2), u the unit segment directions, l_i the mean length of the
+    two segments, r = ``min_radius`` (metres). |u_{i+1} - u_i|^2 = 2 (1 - cos theta) ~ theta^2 for a
+    turn of theta, and a circle of radius r turns by l / r over an arc l, so only bends tighter than r
+    count (straight and wavy hair are left alone; millimetre zigzags of decoded short strands are not).
+
+    Args:
+        points: (...,P,3) strand points (P >= 3), metres. min_radius: r > 0.
+
+    Returns:
+        Scalar (squared radians).
+    """
+    d = points[..., 1:, :] - points[..., :-1, :]
+    length = d.norm(dim=-1)
+    u = d / length.clamp_min(1e-9)[..., None]
+    turn = (u[..., 1:, :] - u[..., :-1, :]).square().sum(-1)
+    allowed = (0.5 * (length[..., 1:] + length[..., :-1]) / min_radius).square()
+    return torch.relu(turn - allowed).mean()
 
 
 def motion_loss(offsets: Tensor) -> Tensor:

@@ -30,7 +30,7 @@ from torch import Tensor, nn
 
 from vid2haircut.fit.config import Stage1Config
 from vid2haircut.fit.data import FitData
-from vid2haircut.fit.losses import penetration_loss
+from vid2haircut.fit.losses import bend_loss, penetration_loss
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    z_optimizer)
 from vid2haircut.fit.trainer import History, Trainer
@@ -147,13 +147,15 @@ class Stage1Model(nn.Module):
         return [z_optimizer(self.cfg.z_optimizer, groups)]
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
-        """silhouette, direction, depth (reference keyframe) and penetration terms."""
+        """silhouette, direction, depth (reference keyframe), penetration and (when weighted) bend terms."""
         pts = decode_layout(self.current_z(step), self.layout, self.codec)          # (N,P,3)
         render_pts = pts[:, self.layout.render_index]
         out = render_frames(render_pts[None], self.data, self.frames, self.cfg.render)
         self.last_render = out
         losses = image_losses(out, self.data, self.frames)
         losses["penetration"] = penetration_loss(pts, self.data.head.sdf, self.cfg.penetration_margin)
+        if self.cfg.weights.bend > 0.0:
+            losses["bend"] = bend_loss(pts, self.cfg.min_bend_radius)
         return losses
 
     @torch.no_grad()

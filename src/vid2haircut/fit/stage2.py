@@ -26,7 +26,7 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import (anchor_loss, motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses,
+from vid2haircut.fit.losses import (anchor_loss, bend_loss, motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses,
                                     tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    z_optimizer)
@@ -214,6 +214,8 @@ class Stage2Model(nn.Module):
         if cfg.weights.anchor > 0.0:
             losses["anchor"] = anchor_loss(canon[:, self.layout.render_index], self.start,
                                            ~self.points_seen.any(0))
+        if cfg.weights.bend > 0.0:
+            losses["bend"] = bend_loss(canon, cfg.min_bend_radius)
         if cfg.switches.use_pca_consistency:
             losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
         if scale > 0.0:
