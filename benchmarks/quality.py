@@ -63,8 +63,9 @@ SEEDED_VARIANTS = ["stage2", "no_deformation", "no_smoothness", "no_visibility",
 STAGE2_FROM = {"stage2_ft": "stage1_ft", "stage2_oracle": "oracle"}  # Stage 2 variants started elsewhere
 STAGE1_VARIANTS = {
     "stage1": {},
-    # the published Im2Haircut recipe: fine-tune the prior network (AdamW 1e-4, wd 1e-3), penetration 0.3
-    "stage1_ft": {"finetune_prior": True, "weights": {"penetration": 0.3}},
+    # the published Im2Haircut recipe: fine-tune the prior network (AdamW 1e-4, wd 1e-3), penetration 0.3,
+    # no bend term (ours)
+    "stage1_ft": {"finetune_prior": True, "weights": {"penetration": 0.3, "bend": 0.0}},
 }
 DEFAULT_VARIANTS = ["oracle", "prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness",
                     "no_visibility", "no_pca", "kf1", "kf3"]
