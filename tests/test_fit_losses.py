@@ -303,7 +303,8 @@ def _arc(radius: float, length: float, n: int = 50) -> torch.Tensor:
 def test_bend_loss_counts_only_bends_tighter_than_the_radius():
     from vid2haircut.fit.losses import bend_loss
 
-    straight = torch.stack([torch.linspace(0, 0.2, 50, dtype=torch.float64)] + [torch.zeros(50, dtype=torch.float64)] * 2, -1)
+    zeros = torch.zeros(50, dtype=torch.float64)
+    straight = torch.stack([torch.linspace(0, 0.2, 50, dtype=torch.float64), zeros, zeros], -1)
     assert float(bend_loss(straight, 0.003)) == 0.0
     assert float(bend_loss(_arc(0.02, 0.05), 0.003)) == 0.0            # a 2 cm wave: left alone
     tight = bend_loss(_arc(0.001, 0.02, 200), 0.003)                     # a 1 mm coil

@@ -21,6 +21,8 @@ Geometry terms act on strands in the canonical head frame:
 - :func:`pca_consistency_loss`: the coefficients of texels not observed in any keyframe should
   agree with the mean of their hair-bearing neighbours (observed neighbours enter detached, so
   information flows from observed into unobserved regions, never back).
+- :func:`anchor_loss`: guide points that no keyframe shows stay near their starting positions.
+- :func:`bend_loss`: strands bend no tighter than a minimum radius (only the excess turn counts).
 - :func:`motion_loss`: mean squared deformation offset.
 """
 
@@ -34,8 +36,8 @@ import torch.nn.functional as F
 from torch import Tensor
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
-           "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss", "quantile_normalize",
-           "anchor_loss", "bend_loss"]
+           "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss",
+           "quantile_normalize", "anchor_loss", "bend_loss"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:

@@ -26,8 +26,8 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import (anchor_loss, bend_loss, motion_loss, pca_consistency_loss, penetration_loss, smoothness_losses,
-                                    tip_height_loss)
+from vid2haircut.fit.losses import (anchor_loss, bend_loss, motion_loss, pca_consistency_loss, penetration_loss,
+                                    smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
