@@ -1,4 +1,4 @@
-"""benchmarks/quality.py report tables (the fitting itself is covered by the stage tests)."""
+"""benchmarks/quality.py variants and its report tables (the fitting itself is covered by the stage tests)."""
 
 import json
 import sys
@@ -9,14 +9,22 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 
-@pytest.fixture(scope="module")
-def quality():
+def _bench(name: str):
     sys.path.insert(0, str(REPO / "benchmarks"))
     try:
-        import quality as mod
+        return __import__(name)
     finally:
         sys.path.pop(0)
-    return mod
+
+
+@pytest.fixture(scope="module")
+def quality():
+    return _bench("quality")
+
+
+@pytest.fixture(scope="module")
+def quality_report():
+    return _bench("quality_report")
 
 
 def _record(path: Path, sil: float, direc: float, depth: float, total: float) -> None:
@@ -27,20 +35,20 @@ def _record(path: Path, sil: float, direc: float, depth: float, total: float) ->
     (path / "stage2.json").write_text(json.dumps(rec))
 
 
-def test_loss_table_splits_image_terms_and_keeps_one_objective(quality, tmp_path):
+def test_loss_table_splits_image_terms_and_keeps_one_objective(quality_report, tmp_path):
     seqs = ["a_1", "b_2"]
     for s in seqs:
         _record(tmp_path / "runs" / s / "stage2", 0.1, 0.2, 0.3, 1.0)
         _record(tmp_path / "runs" / s / "stage2_oracle", 0.05, 0.1, 0.2, 2.0)
         _record(tmp_path / "runs" / s / "no_smoothness", 0.0, 0.0, 0.0, 0.0)  # another objective
     _record(tmp_path / "runs" / "a_1" / "no_visibility", 0.0, 0.0, 0.0, 0.0)  # missing for b_2
-    text = quality.loss_table(tmp_path, seqs, ["stage2", "stage2_oracle", "no_smoothness", "no_visibility"])
+    text = quality_report.loss_table(tmp_path, seqs, ["stage2", "stage2_oracle", "no_smoothness", "no_visibility"])
     rows = [line for line in text.splitlines() if line.startswith("| ") and "method" not in line]
     assert len(rows) == 2
     # image terms: 1 * 0.1 + 0.8 * 0.2 + 0.1 * 0.3 = 0.29; all terms: the recorded final total
-    assert rows[0] == f"| {quality.LABELS['stage2']} | 0.2900 / 1.0000 | 0.2900 / 1.0000 | 0.2900 / 1.0000 |"
-    assert rows[1].startswith(f"| {quality.LABELS['stage2_oracle']} | 0.1500 / 2.0000 |")
-    assert quality.loss_table(tmp_path, seqs, ["no_smoothness"]) == ""
+    assert rows[0] == f"| {quality_report.LABELS['stage2']} | 0.2900 / 1.0000 | 0.2900 / 1.0000 | 0.2900 / 1.0000 |"
+    assert rows[1].startswith(f"| {quality_report.LABELS['stage2_oracle']} | 0.1500 / 2.0000 |")
+    assert quality_report.loss_table(tmp_path, seqs, ["no_smoothness"]) == ""
 
 
 def test_stage2_oracle_starts_from_the_encoded_ground_truth(quality):
