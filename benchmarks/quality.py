@@ -27,8 +27,9 @@ README table uses 0.03 so that the deformation has something to explain).
 (deformation field, frame codes and dense roots; Stage 1 is shared) and reports their mean, plus a
 table of the per-seed means and in how many seeds each ablation is worse than the full method:
 the ablations' effects are of the size of the seed-to-seed spread.
-The tables are written by ``quality_report.py``. Every stage's outputs are cached under ``--work``: a second run only redoes what is missing, so
-the benchmark can be run in pieces (``--sequences``, ``--variants``).
+The tables are written by ``quality_report.py``. Every stage's outputs are cached under
+``--work``: a second run only redoes what is missing, so the benchmark can be run in pieces
+(``--sequences``, ``--variants``).
 
     .venv/bin/python benchmarks/quality.py --work results/benchmarks/quality --out results/benchmarks/quality.md
     .venv/bin/python benchmarks/quality.py --sway-gain 0.03 --work results/benchmarks/quality_sway \
