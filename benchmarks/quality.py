@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quality_report import LABELS, emit, loss_table, region_table, seed_table, table, tip_table
+from quality_report import LABELS, emit, loss_table, region_bound, region_table, seed_table, table, tip_table
 
 SEQUENCES = [("bob", 1000), ("shoulder_straight", 1001), ("side_parted", 1002), ("bangs", 1003),
              ("wavy", 1004), ("short_straight", 1005)]
@@ -283,9 +283,12 @@ def main(argv: list[str] | None = None) -> int:
     timing = " | ".join(f"{v} {np.mean([times[(s, v)] for s in names]):.0f}s" for v in variants
                         if v not in ("prior", "oracle"))
     regions = region_table(results, names, variants)
+    bound = region_bound(results, names)
+    bound = f"{bound}\n\n" if bound else ""
     text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
             f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
             f"side 60-120 deg, back >= 120 deg; the keyframes turn up to ~64 deg):\n\n{regions}\n\n"
+            f"{bound}"
             f"Median tip height of the strands rooted in each region above the ground truth's, cm (mean over "
             f"the sequences; positive = the hair ends too high, i.e. is too short):\n\n"
             f"{tip_table(results, names, variants)}\n\n"

@@ -55,3 +55,19 @@ def test_stage2_oracle_starts_from_the_encoded_ground_truth(quality):
     assert quality.STAGE2_FROM["stage2_oracle"] == "oracle"
     assert quality.STAGE2_VARIANTS["stage2_oracle"] == {}
     assert "stage2_oracle" not in quality.DEFAULT_VARIANTS
+
+
+def test_region_bound_puts_the_seen_regions_at_the_floor(quality_report):
+    def m(front, side, back):
+        return {"chamfer_pts_front": front * 1e-4, "chamfer_pts_side": side * 1e-4,
+                "chamfer_pts_back": back * 1e-4, "chamfer_pts": (front + side + back) * 1e-4}
+
+    seqs = ["a_1", "b_2"]
+    results = {("a_1", "oracle"): m(0.01, 0.02, 0.03), ("b_2", "oracle"): m(0.01, 0.02, 0.05),
+               ("a_1", "stage1"): m(0.1, 0.1, 0.1), ("b_2", "stage1"): m(0.1, 0.1, 0.1),
+               ("a_1", "stage2"): m(0.05, 0.05, 0.08), ("b_2", "stage2"): m(0.05, 0.05, 0.12)}
+    text = quality_report.region_bound(results, seqs)
+    # bound = floor front + side (0.03) + fitted back (0.10) = 0.13; Stage 1 0.3 -> at most 2.31x; measured 0.2 -> 1.50x
+    assert "would reach 0.130" in text and "at most 2.31x" in text and "measured 0.200, 1.50x" in text
+    del results[("b_2", "oracle")]
+    assert quality_report.region_bound(results, seqs) == ""
