@@ -79,6 +79,20 @@ QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_s
 log = logging.getLogger("quality")
 
 
+def parse_sequence(name: str) -> tuple[str, int]:
+    """``<family>_<seed>`` -> (family, seed) for any generator family and a seed >= 1000 (the prior
+    trains on seeds below 1000); SystemExit naming what is wrong otherwise."""
+    from vid2haircut.synth.hairstyles import FAMILIES
+
+    family, _, seed = name.rpartition("_")
+    if family not in FAMILIES or not seed.isdigit():
+        raise SystemExit(f"unknown sequence {name!r}: expected <family>_<seed> with a family of "
+                         f"{', '.join(FAMILIES)}")
+    if int(seed) < 1000:
+        raise SystemExit(f"sequence {name!r}: seeds below 1000 are the prior's training hairstyles")
+    return family, int(seed)
+
+
 def seq_files(work: Path, subject: str) -> dict:
     """Where a sequence of a work folder and its front-stage outputs live (the dict :func:`prepare` returns)."""
     front = work / "front" / subject
@@ -259,12 +273,12 @@ def main(argv: list[str] | None = None) -> int:
             LABELS[v] = LABELS[v].replace("6 keyframes", f"{n_kf} keyframes")
     pool = {f"{f}_{s}": (f, s) for f, s in SEQUENCES}
     names = args.sequences.split(",") if args.sequences else list(pool)[: 2 if args.quick else 4]
+    for name in names:
+        pool.setdefault(name, parse_sequence(name))
     variants = args.variants.split(",")
     seeds = [int(x) for x in args.stage2_seeds.split(",")]
     results, times, per_seed = {}, {}, {}
     for name in names:
-        if name not in pool:
-            raise SystemExit(f"unknown sequence {name!r}; known: {sorted(pool)}")
         t0 = time.perf_counter()
         seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)

@@ -71,3 +71,11 @@ def test_region_bound_puts_the_seen_regions_at_the_floor(quality_report):
     assert "would reach 0.130" in text and "at most 2.31x" in text and "measured 0.200, 1.50x" in text
     del results[("b_2", "oracle")]
     assert quality_report.region_bound(results, seqs) == ""
+
+
+def test_sequence_names_take_any_family_and_an_evaluation_seed(quality):
+    assert quality.parse_sequence("short_straight_1015") == ("short_straight", 1015)
+    with pytest.raises(SystemExit, match="training hairstyles"):
+        quality.parse_sequence("bob_12")
+    with pytest.raises(SystemExit, match="expected <family>_<seed>"):
+        quality.parse_sequence("mullet_1000")
