@@ -105,6 +105,31 @@ def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
     assert torch.allclose(g_on[pv], g_off[pv])                            # visible ones keep their gradient
 
 
+def test_strand_visibility_unit_updates_whole_seen_strands_only(toy):
+    from vid2haircut.fit.visibility import gate_visibility, point_visibility
+
+    z0, m0 = _start(toy)
+    model = Stage2Model(toy.data, toy.codec, _cfg(visibility_unit="strand"), z0, m0)
+    canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
+    frames = torch.tensor([1])
+    moved, _ = model.deformed(canon, frames, 0.0)
+    out = render_frames(moved, toy.data, frames, model.cfg.render)
+    model.gate.set_visibility(gate_visibility(out.visibility, "strand"))
+    loss = image_losses(out, toy.data, frames)
+    (loss["silhouette"] + loss["direction"]).backward()
+    seg = out.visibility[0]
+    seen = seg.any(-1)                                                     # (N,) strands with a visible segment
+    partly = seen & ~seg.all(-1)
+    assert partly.any() and (~seen).any()
+    g = canon.grad.norm(dim=-1)
+    assert float(g[~seen].max()) == 0.0                                   # unseen strands get nothing
+    hidden_pts = ~point_visibility(seg)
+    assert float(g[partly][hidden_pts[partly]].max()) > 0.0               # hidden parts of seen strands do
+    assert torch.equal(gate_visibility(seg, "segment"), seg)
+    with pytest.raises(ValueError, match="visibility_unit"):
+        Stage2Model(toy.data, toy.codec, _cfg(visibility_unit="pixel"), z0, m0)
+
+
 def test_anchor_holds_only_the_points_no_keyframe_shows(toy):
     from vid2haircut.fit.losses import anchor_loss
 

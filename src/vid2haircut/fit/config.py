@@ -214,6 +214,10 @@ class Stage2Config:
     together; 0 = plain)."""
     min_bend_radius: float = 0.003
     """Tightest bend (metres) that :attr:`LossWeights.bend` leaves alone."""
+    visibility_unit: str = "segment"
+    """What the visibility gate (``switches.use_visibility``) lets frame t update: "segment", the
+    segments visible in t (method.md); "strand", every segment of the strands with a visible segment
+    in t (:func:`vid2haircut.fit.visibility.gate_visibility`)."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

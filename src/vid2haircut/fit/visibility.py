@@ -26,7 +26,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["VisibilityGate", "point_visibility", "texel_visible_fraction"]
+__all__ = ["VisibilityGate", "gate_visibility", "point_visibility", "texel_visible_fraction"]
 
 
 def point_visibility(segment_visible: Tensor) -> Tensor:
@@ -34,6 +34,20 @@ def point_visibility(segment_visible: Tensor) -> Tensor:
     v = segment_visible.bool()
     pad = torch.zeros_like(v[..., :1])
     return torch.cat([v, pad], -1) | torch.cat([pad, v], -1)
+
+
+def gate_visibility(segment_visible: Tensor, unit: str = "segment") -> Tensor:
+    """(B,N,P-1) bool per-segment visibility -> the (B,N,P-1) bool visibility the gate uses.
+
+    ``unit`` "segment": as rendered (the gradient of frame t reaches the segments visible in t);
+    "strand": every segment of a strand that shows a visible segment in t (frame t updates the
+    strands it sees, and a strand hidden in t gets nothing from t).
+    """
+    if unit == "segment":
+        return segment_visible
+    if unit == "strand":
+        return segment_visible.any(-1, keepdim=True).expand_as(segment_visible)
+    raise ValueError(f"unknown visibility_unit {unit!r} (expected 'segment' or 'strand')")
 
 
 def texel_visible_fraction(segment_visible: Tensor) -> Tensor:
