@@ -46,9 +46,10 @@ def region_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str 
     if not all((s, v) in results for s in seqs for v in ("oracle", base, fit)):
         return ""
     seen = mean("oracle", "chamfer_pts_front") + mean("oracle", "chamfer_pts_side")
-    bound = seen + mean(fit, "chamfer_pts_back")
+    back = mean(fit, "chamfer_pts_back")
+    bound = seen + back
     b, f = mean(base, "chamfer_pts"), mean(fit, "chamfer_pts")
-    return (f"Region bound: with its back as fitted ({mean(fit, 'chamfer_pts_back'):.3f}; {LABELS[base]}: "
+    return (f"Region bound: with its back as fitted ({back:.3f}; {LABELS[base]}: "
             f"{mean(base, 'chamfer_pts_back'):.3f}) and its front and side at the floor ({seen:.3f}), "
             f"{LABELS[fit]} would reach {bound:.3f}: at most {b / bound:.2f}x lower than {LABELS[base]} "
             f"({b:.3f}); measured {f:.3f}, {b / f:.2f}x.")

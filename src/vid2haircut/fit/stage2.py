@@ -32,7 +32,8 @@ from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_loss
                                    z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer
-from vid2haircut.fit.visibility import VisibilityGate, gate_visibility, point_visibility, texel_visible_fraction
+from vid2haircut.fit.visibility import (VisibilityGate, check_visibility_unit, gate_visibility, point_visibility,
+                                        texel_visible_fraction)
 from vid2haircut.prior.codec import StrandCodec
 
 __all__ = ["Stage2Model", "fit_stage2", "harmonic_extension"]
@@ -89,9 +90,7 @@ class Stage2Model(nn.Module):
         dcfg = DeformConfig(max_offset=cfg.max_offset, code_init_std=cfg.code_init_std)
         self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
                        .to(dev) if cfg.switches.use_deformation else None)
-        if cfg.visibility_unit not in ("segment", "strand"):
-            raise ValueError(f"Stage 2: unknown visibility_unit {cfg.visibility_unit!r} (expected 'segment' or "
-                             "'strand')")
+        check_visibility_unit(cfg.visibility_unit)
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
         pr = int(self.layout.render_index.numel())

@@ -8,6 +8,9 @@ visibility of the *same* forward pass (set with :meth:`VisibilityGate.set_visibi
 render, read during backward), so the mask is never a step late. A point counts as visible in a
 frame when one of its two adjacent segments is.
 
+With ``Stage2Config.visibility_unit`` "strand" the gate keeps every point of a strand that has a
+visible segment in the frame (:func:`gate_visibility`).
+
 Only the image terms pass through the gate; geometry terms (penetration, smoothness, PCA
 consistency) act on the un-gated canonical points, so invisible segments move only through them
 and the codec prior.
@@ -26,7 +29,11 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-__all__ = ["VisibilityGate", "gate_visibility", "point_visibility", "texel_visible_fraction"]
+__all__ = ["VISIBILITY_UNITS", "VisibilityGate", "check_visibility_unit", "gate_visibility", "point_visibility",
+           "texel_visible_fraction"]
+
+VISIBILITY_UNITS = ("segment", "strand")
+"""Values of ``Stage2Config.visibility_unit`` (see :func:`gate_visibility`)."""
 
 
 def point_visibility(segment_visible: Tensor) -> Tensor:
@@ -43,11 +50,16 @@ def gate_visibility(segment_visible: Tensor, unit: str = "segment") -> Tensor:
     "strand": every segment of a strand that shows a visible segment in t (frame t updates the
     strands it sees, and a strand hidden in t gets nothing from t).
     """
-    if unit == "segment":
-        return segment_visible
+    check_visibility_unit(unit)
     if unit == "strand":
         return segment_visible.any(-1, keepdim=True).expand_as(segment_visible)
-    raise ValueError(f"unknown visibility_unit {unit!r} (expected 'segment' or 'strand')")
+    return segment_visible
+
+
+def check_visibility_unit(unit: str) -> None:
+    """ValueError unless ``unit`` is one of :data:`VISIBILITY_UNITS`."""
+    if unit not in VISIBILITY_UNITS:
+        raise ValueError(f"unknown visibility_unit {unit!r} (expected one of {', '.join(VISIBILITY_UNITS)})")
 
 
 def texel_visible_fraction(segment_visible: Tensor) -> Tensor:
