@@ -107,7 +107,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.pack:
         pack(work, Path(args.pack), names)
         return 0
-    grid = json.loads(Path(args.grid).read_text() if Path(args.grid).is_file() else args.grid)
+    text = args.grid.strip()
+    grid = json.loads(text if text.startswith("{") else Path(text).read_text())  # inline JSON or a file
     if args.untar:
         with tarfile.open(args.untar) as t:
             t.extractall(work, filter="data")
