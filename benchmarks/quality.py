@@ -10,8 +10,9 @@ then the fitting variants through the same file-level entry points as the pipeli
 - ``stage1``: single-view fit (Im2Haircut baseline; the default optimises Z from the prior's
   prediction, ``stage1_ft`` fine-tunes the prior network as published),
 - ``stage2``: the full method (6 keyframes), and the ablations ``no_deformation``,
-  ``no_smoothness``, ``no_visibility``, ``no_pca``, ``kf1``, ``kf3`` (these start from the default
-  Stage 1), ``stage2_ft`` (the full method started from ``stage1_ft``) and ``stage2_oracle`` (the
+  ``no_smoothness``, ``no_visibility``, ``no_pca``, ``kf1``, ``kf3``, ``segment_gate`` (the
+  visibility gate per segment, as method.md words it, instead of per strand; these start from the
+  default Stage 1), ``stage2_ft`` (the full method started from ``stage1_ft``) and ``stage2_oracle`` (the
   full method started from ``oracle``: how far the Stage 2 objective moves the truth, and which
   final loss the truth reaches against the fits; neither is in the default list).
 
@@ -57,12 +58,13 @@ STAGE2_VARIANTS = {
     "no_smoothness": {"switches": {"use_smoothness": False}},
     "no_visibility": {"switches": {"use_visibility": False}},
     "no_pca": {"switches": {"use_pca_consistency": False}},
+    "segment_gate": {"visibility_unit": "segment"},
     "kf1": {"n_keyframes": 1},
     "kf3": {"n_keyframes": 3},
     "stage2_ft": {},
     "stage2_oracle": {},
 }
-SEEDED_VARIANTS = ["stage2", "no_deformation", "no_smoothness", "no_visibility", "no_pca"]  # run per --stage2-seeds
+SEEDED_VARIANTS = ["stage2", "no_deformation", "no_smoothness", "no_visibility", "no_pca", "segment_gate"]  # run per --stage2-seeds
 STAGE2_FROM = {"stage2_ft": "stage1_ft", "stage2_oracle": "oracle"}  # Stage 2 variants started elsewhere
 STAGE1_VARIANTS = {
     "stage1": {},
@@ -71,7 +73,7 @@ STAGE1_VARIANTS = {
     "stage1_ft": {"finetune_prior": True, "weights": {"penetration": 0.3, "bend": 0.0}},
 }
 DEFAULT_VARIANTS = ["oracle", "prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness",
-                    "no_visibility", "no_pca", "kf1", "kf3"]
+                    "no_visibility", "no_pca", "segment_gate", "kf1", "kf3"]
 HEAD_FILL = 0.6  # fraction of the image height the head (crown to neck) fills (the generator's default)
 SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}

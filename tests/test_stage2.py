@@ -16,6 +16,7 @@ from vid2haircut.fit.deform import DeformationField, DeformConfig, deformation_w
 from vid2haircut.fit.scene import image_losses, render_frames
 from vid2haircut.fit.stage2 import Stage2Model, checkpoint_state, fit_stage2, harmonic_extension
 from vid2haircut.fit.toy import toy_problem, write_toy_files
+from vid2haircut.fit.visibility import gate_visibility, point_visibility
 
 FAST = {"iterations": 8, "canonical_steps": 3, "ramp_steps": 2, "lr_z": 0.1, "render": {"n_points": 16},
         "n_dense": 300, "checkpoint_every": 3}
@@ -85,19 +86,18 @@ def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
     z0, m0 = _start(toy)
     grads = {}
     for use in (True, False):
-        model = Stage2Model(toy.data, toy.codec, _cfg(switches={"use_visibility": use}), z0, m0)
+        cfg = _cfg(switches={"use_visibility": use}, visibility_unit="segment")   # method.md's gate
+        model = Stage2Model(toy.data, toy.codec, cfg, z0, m0)
         canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
         frames = torch.tensor([1])                                          # one side view
         moved, _ = model.deformed(canon, frames, 0.0)
         out = render_frames(moved, toy.data, frames, model.cfg.render)
-        model.gate.set_visibility(out.visibility)
+        model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
         loss = image_losses(out, toy.data, frames)
         (loss["silhouette"] + loss["direction"]).backward()
         grads[use] = (canon.grad.norm(dim=-1), out.visibility[0])
     g_on, vis = grads[True]
     g_off, _ = grads[False]
-    from vid2haircut.fit.visibility import point_visibility
-
     pv = point_visibility(vis)
     assert pv.any() and (~pv).any()
     assert float(g_on[~pv].abs().max()) == 0.0                            # invisible points get nothing
@@ -106,15 +106,13 @@ def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
 
 
 def test_strand_visibility_unit_updates_whole_seen_strands_only(toy):
-    from vid2haircut.fit.visibility import gate_visibility, point_visibility
-
     z0, m0 = _start(toy)
     model = Stage2Model(toy.data, toy.codec, _cfg(visibility_unit="strand"), z0, m0)
     canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
     frames = torch.tensor([1])
     moved, _ = model.deformed(canon, frames, 0.0)
     out = render_frames(moved, toy.data, frames, model.cfg.render)
-    model.gate.set_visibility(gate_visibility(out.visibility, "strand"))
+    model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
     loss = image_losses(out, toy.data, frames)
     (loss["silhouette"] + loss["direction"]).backward()
     seg = out.visibility[0]
