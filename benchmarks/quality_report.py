@@ -17,7 +17,8 @@ LABELS = {"oracle": "Ground truth encoded in the hair map (representation floor)
           "stage2": "**Stage 2 (Vid2Haircut, 6 keyframes)**", "no_deformation": "Stage 2 w/o deformation MLP",
           "no_smoothness": "Stage 2 w/o smoothness", "no_visibility": "Stage 2 w/o visibility masking",
           "no_pca": "Stage 2 w/o PCA consistency",
-          "segment_gate": "Stage 2, visibility gate per segment (method.md)", "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes",
+          "segment_gate": "Stage 2, visibility gate per segment (method.md)",
+          "kf1": "Stage 2, 1 keyframe", "kf3": "Stage 2, 3 keyframes",
           "stage2_ft": "Stage 2 (6 keyframes) started from the fine-tuned Stage 1",
           "stage2_oracle": "Stage 2 (6 keyframes) started from the ground truth encoded in the hair map"}
 def region_table(results: dict, seqs: list[str], variants: list[str]) -> str:
