@@ -7,12 +7,16 @@ On a ``benchmarks/quality.py`` work folder (sequences made with hair motion), fo
 - the image loss (silhouette + direction + depth, Stage 2's weights 1) of the ground truth encoded
   in the hair map (the ``oracle`` run), rendered as it is (a = 0), with the true sway of its own
   guides added (a = 1), half of it (a = 0.5) and reversed (a = -1): whether the images hold the sway;
+- with ``--free-steps S``, for each turned keyframe: S Adam steps (lr 0.01) on free per-strand
+  offsets of those guides, shaped like the deformation field's (two coefficients per strand along
+  its normal and binormal, 8 mm each, weighted from zero at the root to one at the tip): how far
+  the image loss alone moves the tips and whether it moves them along the sway;
 - with ``--fit VARIANT`` (a Stage 2 run of the work folder, e.g. ``stage2``), the tip offsets of
   its fitted deformation field on its fitted guides, mean and max in millimetres, and the median
   cosine between them and the ground truth's sway of the nearest-rooted ground-truth strand.
 
     .venv/bin/python benchmarks/sway_probe.py --work results/benchmarks/quality_v8 \\
-        --sequences bob_1000,wavy_1004 --fit stage2
+        --sequences bob_1000,wavy_1004 --fit stage2 --free-steps 100
 """
 
 from __future__ import annotations
@@ -30,8 +34,53 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import quality  # noqa: E402  (the benchmark's sequence layout)
 
 
-def loss_probe(seq: dict, run: Path, params) -> list[str]:
-    """Image loss of the oracle run's guides with a times the true sway, per keyframe."""
+def _cos(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """(N,3), (N,3) -> (N,) cosine (0 where either is zero)."""
+    return (a * b).sum(-1) / (a.norm(dim=-1) * b.norm(dim=-1) + 1e-12)
+
+
+def free_offsets(canon: torch.Tensor, sway: torch.Tensor, data, position: int, render_cfg, steps: int,
+                 max_offset: float = 0.008, lr: float = 0.01) -> str:
+    """Fit per-strand offsets (the field's shape, free per strand) to one keyframe's image loss.
+
+    Args:
+        canon: (N,P,3) guides. sway: (N,P,3) their true offsets at this keyframe.
+        position: keyframe position in ``data``. steps: Adam steps.
+
+    Returns:
+        One line: image loss before / after, mean tip offset (mm), mean cosine with the sway at the tips.
+    """
+    from vid2haircut.fit.deform import deformation_weight, strand_frames
+    from vid2haircut.fit.scene import image_losses, render_frames
+
+    nrm, bin_ = strand_frames(canon)
+    w = deformation_weight(torch.linspace(0.0, 1.0, canon.shape[1]), 10 / 99)[None, :, None]
+    ab = torch.zeros(canon.shape[0], 1, 2, requires_grad=True)
+    opt = torch.optim.Adam([ab], lr=lr)
+    fr = torch.tensor([position])
+
+    def offsets() -> torch.Tensor:
+        return w * max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
+
+    first = None
+    for _ in range(steps):
+        opt.zero_grad()
+        total = sum(image_losses(render_frames((canon + offsets())[None], data, fr, render_cfg), data, fr).values())
+        first = float(total) if first is None else first
+        total.backward()
+        opt.step()
+    with torch.no_grad():
+        tip = offsets()[:, -1]
+        last = float(sum(image_losses(render_frames((canon + offsets())[None], data, fr, render_cfg), data, fr).values()))
+        moved = tip.norm(dim=-1) > 1e-4
+        cos = float(_cos(tip[moved], sway[moved, -1]).mean()) if bool(moved.any()) else 0.0
+    return (f"free per-strand offsets, {steps} steps: image loss {first:.4f} -> {last:.4f}, tip offset mean "
+            f"{tip.norm(dim=-1).mean() * 1e3:.1f} mm, mean cos with the true sway {cos:+.2f}")
+
+
+def loss_probe(seq: dict, run: Path, params, free_steps: int = 0) -> list[str]:
+    """Image loss of the oracle run's guides with a times the true sway, per keyframe (and, with
+    ``free_steps``, :func:`free_offsets` on each turned keyframe)."""
     from vid2haircut.fit.pipeline import load_fit_data, load_hairmap, stage2_config
     from vid2haircut.fit.scene import image_losses, render_frames
     from vid2haircut.fit.stage2 import Stage2Model
@@ -58,6 +107,8 @@ def loss_probe(seq: dict, run: Path, params) -> list[str]:
             losses.append(float(sum(parts.values())))
         rows.append(f"frame {t}: oracle image loss a=0 {losses[0]:.4f}, 0.5 {losses[1]:.4f}, "
                     f"1 {losses[2]:.4f}, -1 {losses[3]:.4f}")
+        if free_steps and i > 0:
+            rows.append(f"frame {t}: " + free_offsets(canon, sway, data, i, cfg.render, free_steps))
     return rows
 
 
@@ -77,7 +128,7 @@ def fit_probe(seq: dict, run: Path, rest: np.ndarray, params) -> list[str]:
         with torch.no_grad():
             off = field.offsets(guides, i)[:, -1].numpy()
         truth = (sway_points(rest, params, t) - rest)[near, -1]
-        cos = (off * truth).sum(-1) / (np.linalg.norm(off, axis=-1) * np.linalg.norm(truth, axis=-1) + 1e-12)
+        cos = _cos(torch.as_tensor(off), torch.as_tensor(truth)).numpy()
         tip = np.linalg.norm(off, axis=-1)
         rows.append(f"frame {t}: fitted tip offset mean {tip.mean() * 1e3:.1f} mm, max {tip.max() * 1e3:.1f} mm, "
                     f"median cos with the true sway {np.median(cos):+.2f}")
@@ -92,6 +143,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--work", required=True, help="a benchmarks/quality.py work folder")
     p.add_argument("--sequences", required=True, help="comma-separated <family>_<seed>")
     p.add_argument("--fit", help="a Stage 2 variant of the work folder whose deformation field to compare")
+    p.add_argument("--free-steps", type=int, default=0, help="fit free per-strand offsets per keyframe")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -108,7 +160,7 @@ def main(argv: list[str] | None = None) -> None:
         for t in frames:
             tip = np.linalg.norm(sway_points(rest, params, t)[:, -1] - rest[:, -1], axis=-1)
             print(f"frame {t}: true tip sway mean {tip.mean() * 1e3:.1f} mm, max {tip.max() * 1e3:.1f} mm")
-        print("\n".join(loss_probe(seq, work / "runs" / name / "oracle", params)))
+        print("\n".join(loss_probe(seq, work / "runs" / name / "oracle", params, args.free_steps)))
         if args.fit:
             print("\n".join(fit_probe(seq, work / "runs" / name / args.fit, rest, params)))
 
