@@ -11,7 +11,8 @@ On a ``benchmarks/quality.py`` work folder (sequences made with hair motion), fo
   offsets of those guides, shaped like the deformation field's (two coefficients per strand along
   its normal and binormal, 8 mm each, weighted from zero at the root to one at the tip): how far
   the image loss alone moves the tips and whether it moves them along the sway;
-- with ``--fit VARIANT`` (a Stage 2 run of the work folder, e.g. ``stage2``), the tip offsets of
+- with ``--fit VARIANT`` (a Stage 2 run of the work folder, e.g. ``stage2``, or any Stage 2 output
+  folder of the sequence), the tip offsets of
   its fitted deformation field on its fitted guides, mean and max in millimetres, and the median
   cosine between them and the ground truth's sway of the nearest-rooted ground-truth strand.
 
@@ -142,7 +143,8 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--work", required=True, help="a benchmarks/quality.py work folder")
     p.add_argument("--sequences", required=True, help="comma-separated <family>_<seed>")
-    p.add_argument("--fit", help="a Stage 2 variant of the work folder whose deformation field to compare")
+    p.add_argument("--fit", help="a Stage 2 variant of the work folder (or a Stage 2 output folder) whose "
+                                 "deformation field to compare")
     p.add_argument("--free-steps", type=int, default=0, help="fit free per-strand offsets per keyframe")
     p.add_argument("--threads", type=int, default=2)
     args = p.parse_args(argv)
@@ -162,7 +164,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f"frame {t}: true tip sway mean {tip.mean() * 1e3:.1f} mm, max {tip.max() * 1e3:.1f} mm")
         print("\n".join(loss_probe(seq, work / "runs" / name / "oracle", params, args.free_steps)))
         if args.fit:
-            print("\n".join(fit_probe(seq, work / "runs" / name / args.fit, rest, params)))
+            run = Path(args.fit) if Path(args.fit).is_dir() else work / "runs" / name / args.fit
+            print("\n".join(fit_probe(seq, run, rest, params)))
 
 
 if __name__ == "__main__":
