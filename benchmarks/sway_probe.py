@@ -41,7 +41,7 @@ def _cos(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 def free_offsets(canon: torch.Tensor, sway: torch.Tensor, data, position: int, render_cfg, steps: int,
-                 max_offset: float = 0.008, lr: float = 0.01) -> str:
+                 lr: float = 0.01) -> str:
     """Fit per-strand offsets (the field's shape, free per strand) to one keyframe's image loss.
 
     Args:
@@ -51,28 +51,32 @@ def free_offsets(canon: torch.Tensor, sway: torch.Tensor, data, position: int, r
     Returns:
         One line: image loss before / after, mean tip offset (mm), mean cosine with the sway at the tips.
     """
-    from vid2haircut.fit.deform import deformation_weight, strand_frames
+    from vid2haircut.fit.deform import DeformConfig, deformation_weight, strand_frames
     from vid2haircut.fit.scene import image_losses, render_frames
 
+    field = DeformConfig()                                   # the Stage 2 field's bound and pinned root
     nrm, bin_ = strand_frames(canon)
-    w = deformation_weight(torch.linspace(0.0, 1.0, canon.shape[1]), 10 / 99)[None, :, None]
+    w = deformation_weight(torch.linspace(0.0, 1.0, canon.shape[1]), field.pinned_fraction)[None, :, None]
     ab = torch.zeros(canon.shape[0], 1, 2, requires_grad=True)
     opt = torch.optim.Adam([ab], lr=lr)
     fr = torch.tensor([position])
 
     def offsets() -> torch.Tensor:
-        return w * max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
+        return w * field.max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
+
+    def image_loss() -> torch.Tensor:
+        return sum(image_losses(render_frames((canon + offsets())[None], data, fr, render_cfg), data, fr).values())
 
     first = None
     for _ in range(steps):
         opt.zero_grad()
-        total = sum(image_losses(render_frames((canon + offsets())[None], data, fr, render_cfg), data, fr).values())
+        total = image_loss()
         first = float(total) if first is None else first
         total.backward()
         opt.step()
     with torch.no_grad():
         tip = offsets()[:, -1]
-        last = float(sum(image_losses(render_frames((canon + offsets())[None], data, fr, render_cfg), data, fr).values()))
+        last = float(image_loss())
         moved = tip.norm(dim=-1) > 1e-4
         cos = float(_cos(tip[moved], sway[moved, -1]).mean()) if bool(moved.any()) else 0.0
     return (f"free per-strand offsets, {steps} steps: image loss {first:.4f} -> {last:.4f}, tip offset mean "
