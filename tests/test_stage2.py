@@ -82,6 +82,26 @@ def test_deformation_weight_zero_at_root():
     assert torch.allclose(seg(moved), seg(pts), atol=1e-6)                  # lengths restored
 
 
+
+def test_one_default_step_moves_the_field_by_a_fraction_of_its_range():
+    """At the default learning rates, one Adam step from rest moves the field's output (before the
+    clamp) by well under its range [-1, 1]: the field can settle between rest and the bound."""
+    cfg = Stage2Config()
+    field = DeformationField(3, 40, DeformConfig(code_init_std=cfg.code_init_std), seed=0)
+    t = torch.linspace(0, 1, 32)[:, None]
+    pts = torch.cat([0.02 * t, -0.2 * t, 0.01 * torch.sin(9 * t)], -1)[None].repeat(40, 1, 1)
+    opt = torch.optim.Adam(field.param_groups(cfg.lr_mlp, cfg.lr_codes))
+    target = torch.randn(40, 32, 3, generator=torch.Generator().manual_seed(0))
+    loss = -(field.offsets(pts, 1) * target).sum()        # every point pulled its own way
+    opt.zero_grad()
+    loss.backward()
+    opt.step()
+    with torch.no_grad():
+        raw = field.mlp(torch.zeros(1, field.mlp[0].in_features)).abs().max()
+        off = field.offsets(pts, 1).norm(dim=-1)[:, -1]
+    assert 0.0 < float(off.max()) < 0.25 * field.cfg.max_offset
+    assert float(raw) < 0.25
+
 def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
     z0, m0 = _start(toy)
     grads = {}

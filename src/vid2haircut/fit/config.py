@@ -190,8 +190,15 @@ class Stage2Config:
     bangs 0.238 -> 0.190)."""
     penetration_margin: float = 0.001
     """As :attr:`Stage1Config.penetration_margin`."""
-    lr_mlp: float = 1.0e-2
-    """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2)."""
+    lr_mlp: float = 1.0e-3
+    """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2). Adam's first
+    steps move each of the 128 zero-initialised output weights by about the learning rate, and the
+    Softplus features they multiply are all positive, so at 1e-2 one step moves the output by about
+    1, the whole clamp range: the field either sits at rest, held there by the canonical term, or
+    jumps to the clamp in every frame and stays (the clamp has no gradient), bob 0.065 against 0.057
+    without the canonical term. At 1e-3 it follows the sway (``benchmarks/sway_probe.py``: bob tips
+    4-6 mm in three turned keyframes, cosine 0.53-0.97 with the truth; seed 0, bob 0.0565 against
+    0.0573, wavy 0.157 against 0.164 Chamfer_pts 1e-4 m^2)."""
     lr_codes: float = 1.0e-3
     """Adam learning rate of the frame codes (method.md: 1e-3)."""
     max_offset: float = 0.008
