@@ -82,7 +82,6 @@ def test_deformation_weight_zero_at_root():
     assert torch.allclose(seg(moved), seg(pts), atol=1e-6)                  # lengths restored
 
 
-
 def test_one_default_step_moves_the_field_by_a_fraction_of_its_range():
     """At the default learning rates, one Adam step from rest moves the field's output (before the
     clamp) by well under its range [-1, 1]: the field can settle between rest and the bound."""
@@ -101,6 +100,7 @@ def test_one_default_step_moves_the_field_by_a_fraction_of_its_range():
         off = field.offsets(pts, 1).norm(dim=-1)[:, -1]
     assert 0.0 < float(off.max()) < 0.25 * field.cfg.max_offset
     assert float(raw) < 0.25
+
 
 def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
     z0, m0 = _start(toy)
