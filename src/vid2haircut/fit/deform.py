@@ -123,8 +123,8 @@ class DeformationField(nn.Module):
         nn.init.zeros_(self.mlp[-1].weight)
         nn.init.zeros_(self.mlp[-1].bias)
 
-    def param_groups(self, lr_mlp: float = 1e-3, lr_codes: float = 1e-3) -> list[dict]:
-        """Optimiser parameter groups (method.md: MLP 1e-2, codes 1e-3; see ``Stage2Config.lr_mlp``)."""
+    def param_groups(self, lr_mlp: float, lr_codes: float) -> list[dict]:
+        """Optimiser parameter groups; the learning rates come from ``Stage2Config.lr_mlp`` / ``lr_codes``."""
         codes = [self.frame_codes.weight]
         rest = [p for n, p in self.named_parameters() if n != "frame_codes.weight"]
         return [{"params": rest, "lr": lr_mlp, "name": "deform_mlp"},
