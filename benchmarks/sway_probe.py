@@ -16,7 +16,7 @@ On a ``benchmarks/quality.py`` work folder (sequences made with hair motion), fo
   its fitted deformation field on its fitted guides, mean and max in millimetres, and the median
   cosine between them and the ground truth's sway of the nearest-rooted ground-truth strand.
 
-    .venv/bin/python benchmarks/sway_probe.py --work results/benchmarks/quality_v9 \\
+    .venv/bin/python benchmarks/sway_probe.py --work results/benchmarks/quality_v11 \\
         --sequences bob_1000,wavy_1004 --fit stage2 --free-steps 100
 """
 
