@@ -134,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
                             work / "sweep" / n / s / "metrics.json") for n in names]
         cells = [f"{m['chamfer_pts'] * 1e4:.3f}" for m in ms]
         reg = [np.mean([m[f"chamfer_pts_{r}"] for m in ms]) * 1e4 for r in ("front", "side", "back")]
-        rows.append(f"| {s} | " + " | ".join(cells) + f" | {np.mean([m['chamfer_pts'] for m in ms]) * 1e4:.3f} | "
+        rows.append(f"| {s} | " + " | ".join(cells) + f" | {np.mean([m['chamfer_pts'] for m in ms]) * 1e4:.4f} | "
                     f"{np.mean([m['chamfer_angle'] for m in ms]):.4f} | " + " | ".join(f"{r:.3f}" for r in reg) + " |")
     text = "Stage 2 sweep, Chamfer_pts (1e-4 m^2) per sequence\n\n" + "\n".join(rows) + "\n"
     quality_report.emit(text, args.out)
