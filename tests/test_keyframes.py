@@ -40,9 +40,11 @@ def test_keyframes_stage(synth_root, tmp_path):
     sel = run_keyframes(synth_root, SUBJECT, SEQ, tmp_path / "a", cfg=KeyframeConfig(num_keyframes=6))
     view = _true_view(synth_root)
     off = {t: v[2] for t, v in view.items()}
-    # the reference is (one of) the most frontal frames, and it is a keyframe
+    # the reference is a frontal frame (within the 3 degree tolerance), and it is a keyframe
     assert sel.reference in sel.frames and len(sel.frames) == 6 and sel.frames == sorted(sel.frames)
-    assert off[sel.reference] <= min(off.values()) + 1.0
+    assert off[sel.reference] <= min(off.values()) + 3.0
+    # of the two frontal ends of the turn it is the still start, not the end where the hair still swings
+    assert sel.reference < 3
     # the keyframes spread over the head turn: both sides, near the extremes
     yaws = [view[t][0] for t in sel.frames]
     true_max = max(abs(v[0]) for v in view.values())
@@ -67,7 +69,7 @@ def test_m_one_and_more_than_frames(synth_root, tmp_path):
     one = run_keyframes(synth_root, SUBJECT, SEQ, tmp_path / "one", cfg=KeyframeConfig(num_keyframes=1))
     assert one.frames == [one.reference]
     view = _true_view(synth_root)
-    assert view[one.reference][2] <= min(v[2] for v in view.values()) + 1.0
+    assert view[one.reference][2] <= min(v[2] for v in view.values()) + 3.0
     many = run_keyframes(synth_root, SUBJECT, SEQ, tmp_path / "many", cfg=KeyframeConfig(num_keyframes=40))
     assert len(many.frames) == 14
 
@@ -111,3 +113,28 @@ def test_choose_keyframes_pure():
         choose_keyframes(frames, yaw, pitch, off, sharp, 0)
     with pytest.raises(ValueError, match="no candidate"):
         choose_keyframes(frames[:0], yaw[:0], pitch[:0], off[:0], sharp[:0], 2)
+
+
+def test_reference_is_the_stillest_frontal_frame():
+    """Hair lags the head: of two frontal frames the one after a still stretch is the reference."""
+    from vid2haircut.front.keyframes import choose_keyframes, head_speed
+
+    frames = np.arange(12)
+    # still and frontal at the start, a turn, then back to frontal at speed (frame 11 the most frontal)
+    yaw = np.array([0.5, 0.6, 0.4, 10, 25, 40, 45, 40, 25, 10, 4, 0.0])
+    pitch = np.zeros(12)
+    off = np.abs(yaw)
+    sharp = np.ones(12)
+    speed = head_speed(frames, yaw, pitch, 3)
+    # frame 0 looks forward to frame 1; frame 2 averages 0 -> 1 -> 2; frame 11 averages 8 -> 11
+    assert speed[:3] == pytest.approx([0.1, 0.1, 0.15]) and speed[11] == pytest.approx(25 / 3)
+    _, ref, _ = choose_keyframes(frames, yaw, pitch, off, sharp, 3, still_frames=3)
+    assert ref == 2                       # still (< 0.5 deg/frame), then the most frontal of 0, 1, 2
+    _, ref0, _ = choose_keyframes(frames, yaw, pitch, off, sharp, 3, still_frames=0)
+    assert ref0 == 11                     # without the look-back: simply the most frontal frame
+    # a still frame outside the frontal tolerance is not taken
+    _, ref_tight, _ = choose_keyframes(frames, yaw, pitch, off, sharp, 3, still_frames=3, frontal_tolerance=0.3)
+    assert ref_tight == 11
+    # thinned candidates: the speed is per frame of the video, not per candidate
+    sp = head_speed(np.array([0, 10, 20]), np.array([0.0, 5.0, 5.0]), np.zeros(3), 3)
+    assert sp == pytest.approx([0.5, 0.5, 0.0])

@@ -19,6 +19,8 @@ rule keyframes:
         out_dir=lambda w, output: str(Path(output.json).parent),
         n=config["keyframes"]["n_keyframes"],
         landmarks=config["keyframes"]["landmarks"],
+        still=config["keyframes"]["still_frames"],
+        tolerance=config["keyframes"]["frontal_tolerance_deg"],
         head_model=config["head"]["model"],
     log:
         "logs/keyframes/{subject}/{seq}.log",
@@ -27,6 +29,7 @@ rule keyframes:
     shell:
         "{params.cli} keyframes --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
         " {params.camera} --out {params.out_dir} --num-keyframes {params.n} --landmarks {params.landmarks}"
+        " --still-frames {params.still} --frontal-tolerance {params.tolerance}"
         " --head-model {params.head_model} > {log} 2>&1"
 
 

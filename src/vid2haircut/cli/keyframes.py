@@ -27,6 +27,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--blur-ratio", type=float, default=0.35,
                    help="reject frames sharper than this fraction of the median sharpness")
     p.add_argument("--max-candidates", type=int, default=300, help="frames scored at most (evenly spaced)")
+    p.add_argument("--still-frames", type=int, default=3,
+                   help="the reference is the frontal frame whose head moved least over this many preceding "
+                        "frames (hair lags the head); 0 = simply the most frontal frame")
+    p.add_argument("--frontal-tolerance", type=float, default=3.0,
+                   help="degrees above the most frontal view that still count as frontal for the reference")
     p.set_defaults(func=run)
 
 
@@ -37,5 +42,7 @@ def run(args: argparse.Namespace) -> int:
     run_keyframes(args.dataset_root, args.subject, args.sequence, args.out, serial=args.serial,
                   head_model=args.head_model, landmark_embedding=args.landmark_embedding,
                   cfg=KeyframeConfig(num_keyframes=args.num_keyframes, max_candidates=args.max_candidates,
-                                     blur_ratio=args.blur_ratio, landmark_source=args.landmarks))
+                                     blur_ratio=args.blur_ratio, landmark_source=args.landmarks,
+                                     still_frames=args.still_frames,
+                                     frontal_tolerance_deg=args.frontal_tolerance))
     return 0

@@ -9,8 +9,12 @@ Algorithm (:func:`select_keyframes`):
 3. sharpness: variance of the Laplacian of the grey image inside the face's bounding box
    (enlarged 1.5x); frames below ``blur_ratio`` x the median are rejected (unless fewer than M
    frames would remain, then the sharpest are kept);
-4. reference = the smallest off-frontal angle; then greedy farthest-point sampling in
-   (yaw, pitch) degrees until M frames are chosen (ties -> sharper, then earlier).
+4. reference = among the frames within ``frontal_tolerance_deg`` of the smallest off-frontal angle,
+   the one where the head has been stillest over the preceding ``still_frames`` frames (hair lags
+   the head: just after a turn the head is frontal but the hair still swings, and the reference
+   keyframe defines the canonical hair that Stage 1 fits and Stage 2 pins its deformation to);
+   then greedy farthest-point sampling in (yaw, pitch) degrees until M frames are chosen (ties ->
+   sharper, then earlier).
 
 ``keyframes.json`` format::
 
@@ -35,6 +39,9 @@ from vid2haircut.front.pose import PoseFitConfig, pnp_pose, project_landmarks, v
 
 log = logging.getLogger(__name__)
 
+SPEED_STEP = 0.5
+"""Head speeds (degrees per frame) closer than this count as equally still when picking the reference."""
+
 
 @dataclass(frozen=True)
 class KeyframeConfig:
@@ -48,6 +55,13 @@ class KeyframeConfig:
     """frames with sharpness < blur_ratio * median sharpness are rejected."""
     landmark_source: str = "auto"
     """"auto" (file, else MediaPipe), "file" or "detect"."""
+    still_frames: int = 3
+    """Head motion before a frame is measured over this many preceding frames (:func:`head_speed`);
+    0 = the reference is simply the most frontal frame. On the generated sequences the hair lags
+    the head by about 3 frames: the frontal frames at the end of a turn (46, 47 of 48) carry 2-3 mm
+    of mean tip sway, the first frames none."""
+    frontal_tolerance_deg: float = 3.0
+    """Frames within this many degrees of the most frontal one may be the reference (the stillest wins)."""
 
 
 @dataclass
@@ -119,13 +133,50 @@ def face_box(lmk: np.ndarray, shape: tuple[int, int], grow: float = 1.5) -> tupl
     return max(0, x0), max(0, y0), min(w, x1), min(h, y1)
 
 
+def head_speed(frames: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, window: int) -> np.ndarray:
+    """Mean head rotation speed (degrees per frame) over the ``window`` frames before each candidate.
+
+    The path length in (yaw, pitch) through the candidates in ``[t - window, t]`` divided by its
+    span in frames. A candidate with no other candidate in its window (the first frame, or a video
+    thinned to fewer candidates) takes the speed to its nearest earlier candidate, or, for the
+    first one, to the next.
+
+    Args:
+        frames: (N,) frame indices, strictly increasing.
+        yaw, pitch: (N,) head view angles, degrees.
+        window: frames looked back (0: all speeds 0).
+    Returns:
+        (N,) float64 speeds, degrees per frame (0 for a single candidate).
+    """
+    n = len(frames)
+    speed = np.zeros(n)
+    if window <= 0 or n < 2:
+        return speed
+    pose = np.stack([yaw, pitch], axis=1).astype(np.float64)
+    step = np.linalg.norm(np.diff(pose, axis=0), axis=1)                       # (N-1,) i-1 -> i
+    gap = np.diff(frames).astype(np.float64)
+    for i in range(n):
+        lo = int(np.searchsorted(frames, frames[i] - window, side="left"))
+        if lo < i:
+            speed[i] = step[lo:i].sum() / max(float(frames[i] - frames[lo]), 1.0)
+        elif i > 0:
+            speed[i] = step[i - 1] / gap[i - 1]
+        else:
+            speed[i] = step[0] / gap[0]
+    return speed
+
+
 def choose_keyframes(frames: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, off_frontal: np.ndarray,
-                     sharp: np.ndarray, m: int, blur_ratio: float = 0.35) -> tuple[list[int], int, list[int]]:
+                     sharp: np.ndarray, m: int, blur_ratio: float = 0.35, still_frames: int = 0,
+                     frontal_tolerance: float = 3.0) -> tuple[list[int], int, list[int]]:
     """Pure selection step.
 
     Args:
-        frames, yaw, pitch, off_frontal, sharp: (N,) per candidate (angles in degrees).
+        frames, yaw, pitch, off_frontal, sharp: (N,) per candidate, frames increasing (angles in degrees).
         m: number of keyframes.
+        blur_ratio: frames sharper than this fraction of the median are kept.
+        still_frames: look-back window of :func:`head_speed` (0: the reference is the most frontal).
+        frontal_tolerance: degrees above the smallest off-frontal angle that still count as frontal.
     Returns:
         (chosen frames sorted ascending, reference frame, frames rejected as blurred).
     """
@@ -140,8 +191,14 @@ def choose_keyframes(frames: np.ndarray, yaw: np.ndarray, pitch: np.ndarray, off
         ok[np.argsort(-sharp, kind="stable")[: min(m, n)]] = True
     blurred = [int(t) for t in frames[~ok]]
     idx = np.flatnonzero(ok)
-    # reference: most frontal; ties -> sharper, then earlier
-    ref = idx[np.lexsort((frames[idx], -sharp[idx], np.round(off_frontal[idx], 6)))[0]]
+    # reference: the stillest of the frontal frames, speeds compared in steps of SPEED_STEP (the
+    # quick pose is noisy at about that level); ties -> more frontal, sharper, then earlier
+    order = np.argsort(frames, kind="stable")
+    speed = np.empty(n)
+    speed[order] = head_speed(frames[order], yaw[order], pitch[order], still_frames)
+    front = idx[off_frontal[idx] <= off_frontal[idx].min() + (frontal_tolerance if still_frames > 0 else 0.0)]
+    ref = front[np.lexsort((frames[front], -sharp[front], np.round(off_frontal[front], 6),
+                            np.floor(speed[front] / SPEED_STEP)))[0]]
     chosen = [int(ref)]
     pose = np.stack([yaw, pitch], axis=1)
     rel = sharp / max(float(np.median(sharp[idx])), 1e-12)
@@ -195,7 +252,8 @@ def select_keyframes(seq, points_head: np.ndarray, cfg: KeyframeConfig = Keyfram
     fr = np.array(rows)
     col = {k: np.array([scores[t][k] for t in rows]) for k in ("yaw_deg", "pitch_deg", "off_frontal_deg", "sharpness")}
     chosen, ref, blurred = choose_keyframes(fr, col["yaw_deg"], col["pitch_deg"], col["off_frontal_deg"],
-                                            col["sharpness"], cfg.num_keyframes, cfg.blur_ratio)
+                                            col["sharpness"], cfg.num_keyframes, cfg.blur_ratio,
+                                            cfg.still_frames, cfg.frontal_tolerance_deg)
     if len(chosen) < cfg.num_keyframes:
         log.warning("only %d keyframes available (asked for %d)", len(chosen), cfg.num_keyframes)
     log.info("keyframes %s, reference %d (%s landmarks)", chosen, ref, lm.source)
