@@ -1,0 +1,57 @@
+"""How far the hair of each keyframe is from rest: the ground truth's tip sway per keyframe.
+
+For every sequence of ``benchmarks/quality.py`` work folders, prints the selected keyframes (the
+reference marked ``*``) with the mean over the ground-truth strands (every ``--stride``-th) of the
+tip's offset from the rest hairstyle at that frame, in millimetres (``vid2haircut.synth.motion``:
+the same moved strands the synthesiser rendered). The reference keyframe defines the canonical hair
+(Stage 1 fits it, Stage 2 pins its deformation to zero), so its sway is an error that no stage can
+remove.
+
+    .venv/bin/python benchmarks/keyframe_sway.py results/benchmarks/quality_v11 results/benchmarks/quality_v12
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def keyframe_sway(work: Path, name: str, stride: int = 5) -> tuple[list[int], int, list[float]]:
+    """(keyframes, reference, mean tip sway per keyframe in mm) of one sequence of a work folder."""
+    from vid2haircut.io.strand_formats import load_strands
+    from vid2haircut.synth.motion import moved_strands
+
+    gt = work / "data" / name / "sequences" / "HAIR" / "ground_truth"
+    meta = json.loads((gt / "meta.json").read_text())
+    rest = load_strands(gt / "strands.npz").points[::stride]
+    kf = json.loads((work / "front" / name / "keyframes.json").read_text())
+    sway = [float(np.linalg.norm(moved_strands(rest, meta, t)[:, -1] - rest[:, -1], axis=-1).mean() * 1e3)
+            for t in kf["frames"]]
+    return kf["frames"], kf["reference"], sway
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("work", nargs="+", help="benchmarks/quality.py work folders")
+    p.add_argument("--stride", type=int, default=5, help="use every stride-th ground-truth strand")
+    args = p.parse_args(argv)
+    for w in map(Path, args.work):
+        refs = []
+        print(f"{w}: mean tip sway (mm) per keyframe, * = reference")
+        for d in sorted((w / "front").iterdir()):
+            if not (d / "keyframes.json").is_file():
+                continue
+            frames, ref, sway = keyframe_sway(w, d.name, args.stride)
+            refs.append(sway[frames.index(ref)])
+            cells = "  ".join(f"{t}{'*' if t == ref else ''}: {s:.1f}" for t, s in zip(frames, sway))
+            print(f"  {d.name:24s} {cells}")
+        if refs:
+            print(f"  reference sway: mean {np.mean(refs):.2f} mm, max {np.max(refs):.2f} mm")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
