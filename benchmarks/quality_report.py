@@ -121,7 +121,7 @@ def seed_table(per_seed: dict, seqs: list[str], variants: list[str], seeds: list
             continue
         worse = "-" if v == "stage2" or not all(("stage2", sd) in means for sd in seeds) else \
             f"{sum(means[(v, sd)] > means[('stage2', sd)] for sd in seeds)} of {len(seeds)}"
-        lines.append(f"| {LABELS[v]} | " + " | ".join(f"{means[(v, sd)]:.3f}" for sd in seeds) + f" | {worse} |")
+        lines.append(f"| {LABELS[v]} | " + " | ".join(f"{means[(v, sd)]:.4f}" for sd in seeds) + f" | {worse} |")
     return "\n".join(lines)
 
 
