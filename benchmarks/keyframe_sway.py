@@ -14,23 +14,33 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import quality  # noqa: E402  (the benchmark's sequence layout)
+
+
+def tip_sway(rest: np.ndarray, params, frames: list[int]) -> np.ndarray:
+    """(N,P,3) rest strands, MotionParams, K frames -> (K, N) ground-truth tip offsets from rest, metres."""
+    from vid2haircut.synth.motion import sway_points
+
+    return np.stack([np.linalg.norm(sway_points(rest, params, t)[:, -1] - rest[:, -1], axis=-1) for t in frames])
 
 
 def keyframe_sway(work: Path, name: str, stride: int = 5) -> tuple[list[int], int, list[float]]:
     """(keyframes, reference, mean tip sway per keyframe in mm) of one sequence of a work folder."""
     from vid2haircut.io.strand_formats import load_strands
-    from vid2haircut.synth.motion import moved_strands
+    from vid2haircut.synth.motion import MotionParams
 
-    gt = work / "data" / name / "sequences" / "HAIR" / "ground_truth"
-    meta = json.loads((gt / "meta.json").read_text())
-    rest = load_strands(gt / "strands.npz").points[::stride]
-    kf = json.loads((work / "front" / name / "keyframes.json").read_text())
-    sway = [float(np.linalg.norm(moved_strands(rest, meta, t)[:, -1] - rest[:, -1], axis=-1).mean() * 1e3)
-            for t in kf["frames"]]
-    return kf["frames"], kf["reference"], sway
+    seq = quality.seq_files(work, name)
+    meta = json.loads(seq["gt"].with_name("meta.json").read_text())
+    rest = np.asarray(load_strands(seq["gt"]).points[::stride])
+    kf = json.loads(seq["keyframes"].read_text())
+    sway = tip_sway(rest, MotionParams.from_dict(meta["motion"]), kf["frames"]).mean(axis=1) * 1e3
+    return kf["frames"], kf["reference"], [float(x) for x in sway]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,6 +33,7 @@ from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import quality  # noqa: E402  (the benchmark's sequence layout)
+from keyframe_sway import tip_sway  # noqa: E402
 
 
 def _cos(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -142,7 +143,7 @@ def fit_probe(seq: dict, run: Path, rest: np.ndarray, params) -> list[str]:
 
 def main(argv: list[str] | None = None) -> None:
     from vid2haircut.io.strand_formats import load_strands
-    from vid2haircut.synth.motion import MotionParams, sway_points
+    from vid2haircut.synth.motion import MotionParams
 
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--work", required=True, help="a benchmarks/quality.py work folder")
@@ -163,8 +164,7 @@ def main(argv: list[str] | None = None) -> None:
         rest = np.asarray(load_strands(seq["gt"]).points)
         frames = json.loads(Path(seq["keyframes"]).read_text())["frames"]
         print(f"## {name}")
-        for t in frames:
-            tip = np.linalg.norm(sway_points(rest, params, t)[:, -1] - rest[:, -1], axis=-1)
+        for t, tip in zip(frames, tip_sway(rest, params, frames)):
             print(f"frame {t}: true tip sway mean {tip.mean() * 1e3:.1f} mm, max {tip.max() * 1e3:.1f} mm")
         print("\n".join(loss_probe(seq, work / "runs" / name / "oracle", params, args.free_steps)))
         if args.fit:
