@@ -57,6 +57,28 @@ def region_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str 
             f"({b:.3f}); measured {f:.3f}, {b / f:.2f}x.")
 
 
+def unseen_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str = "stage2") -> str:
+    """One sentence like :func:`region_bound`, with the part of Chamfer_pts that no keyframe can show
+    (``chamfer_pts_unseen``: points in the back region or outside the image of every keyframe, see
+    ``quality.unseen_test``) as fitted and the rest at the representation floor. Returns "" unless
+    the three variants carry that part on every sequence."""
+    if not all((s, v) in results and "chamfer_pts_unseen" in results[(s, v)]
+               for s in seqs for v in ("oracle", base, fit)):
+        return ""
+
+    def mean(v: str, key: str) -> float:
+        return float(np.mean([results[(s, v)][key] for s in seqs])) * 1e4
+
+    seen = mean("oracle", "chamfer_pts") - mean("oracle", "chamfer_pts_unseen")
+    hidden = mean(fit, "chamfer_pts_unseen")
+    bound = seen + hidden
+    b, f = mean(base, "chamfer_pts"), mean(fit, "chamfer_pts")
+    return (f"Observability bound: with what no keyframe shows (the back, and hair outside the image of "
+            f"every keyframe) as fitted ({hidden:.4f}; {LABELS[base]}: {mean(base, 'chamfer_pts_unseen'):.4f}) "
+            f"and the rest at the floor ({seen:.4f}), {LABELS[fit]} would reach {bound:.4f}: at most "
+            f"{b / bound:.2f}x lower than {LABELS[base]} ({b:.4f}); measured {f:.4f}, {b / f:.2f}x.")
+
+
 def tip_table(results: dict, seqs: list[str], variants: list[str]) -> str:
     """Markdown: mean over the sequences of the median tip height above the ground truth's (cm) per root region."""
     lines = ["| method | front | side | back |", "|---|---|---|---|"]

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from vid2haircut.evaluate import THRESHOLDS, evaluate_files, evaluate_strands
-from vid2haircut.evaluate.metrics import tip_heights
+from scipy.spatial import cKDTree
+from vid2haircut.evaluate.metrics import oriented_points, tip_heights
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 
@@ -113,6 +114,38 @@ def test_subsampling_is_deterministic_and_capped():
     c = evaluate_strands(pred, gt, n_points=20, max_points=300, seed=2)
     assert a == b and a != c
     assert a["n_points_pred"] == a["n_points_gt"] == 300
+
+
+def test_whole_sets_are_exact_and_subsets_biased_upwards():
+    rng = np.random.default_rng(3)
+    gt = StrandSet(rng.normal(scale=0.01, size=(200, 30, 3)).cumsum(1))
+    whole = evaluate_strands(gt, gt, n_points=30)                   # default: every point
+    assert whole["chamfer_pts"] == 0.0 and whole["n_points_pred"] == 200 * 30
+    assert evaluate_strands(gt, gt, n_points=30, max_points=0) == whole
+    # two different random subsets of the same set: a positive score that says nothing of the strands
+    a = oriented_points(gt, 30, 1200, seed=0)
+    b = oriented_points(gt, 30, 1200, seed=1)
+    d_ab = cKDTree(b.points).query(a.points)[0]
+    assert np.mean(d_ab ** 2) > 0.0
+    pred = StrandSet(gt.points + rng.normal(scale=1e-3, size=gt.points.shape))
+    exact = evaluate_strands(pred, gt, n_points=30)["chamfer_pts"]
+    subset = evaluate_strands(pred, gt, n_points=30, max_points=1200)["chamfer_pts"]
+    assert subset > exact
+
+
+def test_unseen_part_of_chamfer():
+    rng = np.random.default_rng(4)
+    gt = StrandSet(rng.normal(scale=0.01, size=(60, 20, 3)).cumsum(1))
+    pred = StrandSet(gt.points + rng.normal(scale=1e-3, size=gt.points.shape))
+    m = evaluate_strands(pred, gt, n_points=20, unseen=lambda x: x[:, 1] < 0.0)
+    p_pts, g_pts = pred.resample(20).points.reshape(-1, 3), gt.resample(20).points.reshape(-1, 3)
+    d_pg = cKDTree(g_pts).query(p_pts)[0] ** 2
+    d_gp = cKDTree(p_pts).query(g_pts)[0] ** 2
+    want = d_pg[p_pts[:, 1] < 0].sum() / len(d_pg) + d_gp[g_pts[:, 1] < 0].sum() / len(d_gp)
+    assert m["chamfer_pts_unseen"] == pytest.approx(want, rel=1e-9)
+    assert 0.0 < m["chamfer_pts_unseen"] < m["chamfer_pts"]
+    assert evaluate_strands(pred, gt, n_points=20, unseen=lambda x: np.ones(len(x), bool))[
+        "chamfer_pts_unseen"] == pytest.approx(m["chamfer_pts"])
 
 
 def test_errors_and_evaluate_files(tmp_path):

@@ -73,6 +73,40 @@ def test_region_bound_puts_the_seen_regions_at_the_floor(quality_report):
     assert quality_report.region_bound(results, seqs) == ""
 
 
+def test_unseen_bound_puts_what_the_keyframes_show_at_the_floor(quality_report):
+    def m(total, unseen):
+        return {"chamfer_pts": total * 1e-4, "chamfer_pts_unseen": unseen * 1e-4}
+
+    seqs = ["a_1", "b_2"]
+    results = {("a_1", "oracle"): m(0.05, 0.02), ("b_2", "oracle"): m(0.03, 0.02),
+               ("a_1", "stage1"): m(0.3, 0.1), ("b_2", "stage1"): m(0.3, 0.1),
+               ("a_1", "stage2"): m(0.2, 0.08), ("b_2", "stage2"): m(0.2, 0.12)}
+    text = quality_report.unseen_bound(results, seqs)
+    # bound = floor seen part (0.04 - 0.02 = 0.02) + fitted unseen part (0.10) = 0.12; 0.3 / 0.12 = 2.50x
+    assert "would reach 0.1200" in text and "at most 2.50x" in text and "measured 0.2000, 1.50x" in text
+    del results[("a_1", "stage2")]["chamfer_pts_unseen"]
+    assert quality_report.unseen_bound(results, seqs) == ""
+
+
+def test_unseen_test_marks_the_back_and_what_leaves_every_frame(quality, tmp_path, monkeypatch):
+    import numpy as np
+    from vid2haircut.camera import Camera, intrinsics_from_fov, look_at
+
+    cam = Camera(intrinsics_from_fov(64, 64, 30.0), look_at(np.array([0.0, 0.0, 1.0]), np.zeros(3)), 64, 64)
+
+    class Fit:
+        world_from_head = np.eye(4)[None]
+
+    monkeypatch.setattr("vid2haircut.front.headfile.load_head_fit", lambda path: (Fit, {"serial": "c0"}))
+    monkeypatch.setattr("vid2haircut.camera.load_cameras", lambda path: {"c0": cam})
+    test = quality.unseen_test({"head": tmp_path / "head.npz", "root": tmp_path, "subject": "s_1000"})
+    pts = np.array([[0.0, 0.0, 0.1],      # in front, in the image
+                    [0.0, 0.0, -0.1],     # behind: back region
+                    [0.0, -2.0, 0.1],     # in front, far below the image
+                    [0.1, 0.0, 0.0]])     # side (azimuth 90), in the image
+    assert test(pts).tolist() == [False, True, True, False]
+
+
 def test_sequence_names_take_any_family_and_an_evaluation_seed(quality):
     assert quality.parse_sequence("short_straight_1015") == ("short_straight", 1015)
     with pytest.raises(SystemExit, match="training hairstyles"):
