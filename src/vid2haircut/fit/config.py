@@ -93,7 +93,9 @@ class RenderSettings:
     """Depth-bin size of the renderer, metres."""
     vis_weight: float = 0.3
     """A guide segment counts as visible in a keyframe when its compositing weight reaches this at
-    some pixel (drives the visibility-aware updates and the observed-texel test)."""
+    some pixel (drives the visibility-aware updates and the observed-texel test). Measured with
+    ``benchmarks/stage2_sweep.py`` (first quality draw, seed 0, exact Chamfer_pts 1e-4 m^2): 0.1 gives
+    0.0736, 0.2 0.0656, 0.3 0.0642, 0.4 0.0663, 0.5 0.0682; looser tests help only the short style."""
 
 
 @dataclass
