@@ -33,6 +33,18 @@ def region_table(results: dict, seqs: list[str], variants: list[str]) -> str:
     return "\n".join(lines)
 
 
+def _mean(results: dict, seqs: list[str], v: str, key: str) -> float:
+    """Mean of ``key`` of variant ``v`` over ``seqs``, in 1e-4 units (Chamfer_pts in 1e-4 m^2)."""
+    return float(np.mean([results[(s, v)][key] for s in seqs])) * 1e4
+
+
+def _bound_claim(results: dict, seqs: list[str], base: str, fit: str, bound: float, digits: int) -> str:
+    """"<fit> would reach <bound>: at most Nx lower than <base> (..); measured .., Mx."."""
+    b, f = _mean(results, seqs, base, "chamfer_pts"), _mean(results, seqs, fit, "chamfer_pts")
+    return (f"{LABELS[fit]} would reach {bound:.{digits}f}: at most {b / bound:.2f}x lower than {LABELS[base]} "
+            f"({b:.{digits}f}); measured {f:.{digits}f}, {b / f:.2f}x.")
+
+
 def region_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str = "stage2") -> str:
     """One sentence: the lowest Chamfer_pts ``fit`` could reach with its back region as fitted and its
     front and side at the representation floor (``oracle``), and the ratio ``base`` / that bound.
@@ -42,19 +54,13 @@ def region_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str 
     of the seen regions alone can give. Returns "" unless all three variants were scored on every
     sequence.
     """
-    def mean(v: str, key: str) -> float:
-        return float(np.mean([results[(s, v)][key] for s in seqs])) * 1e4
-
     if not all((s, v) in results for s in seqs for v in ("oracle", base, fit)):
         return ""
-    seen = mean("oracle", "chamfer_pts_front") + mean("oracle", "chamfer_pts_side")
-    back = mean(fit, "chamfer_pts_back")
-    bound = seen + back
-    b, f = mean(base, "chamfer_pts"), mean(fit, "chamfer_pts")
+    seen = _mean(results, seqs, "oracle", "chamfer_pts_front") + _mean(results, seqs, "oracle", "chamfer_pts_side")
+    back = _mean(results, seqs, fit, "chamfer_pts_back")
     return (f"Region bound: with its back as fitted ({back:.3f}; {LABELS[base]}: "
-            f"{mean(base, 'chamfer_pts_back'):.3f}) and its front and side at the floor ({seen:.3f}), "
-            f"{LABELS[fit]} would reach {bound:.3f}: at most {b / bound:.2f}x lower than {LABELS[base]} "
-            f"({b:.3f}); measured {f:.3f}, {b / f:.2f}x.")
+            f"{_mean(results, seqs, base, 'chamfer_pts_back'):.3f}) and its front and side at the floor "
+            f"({seen:.3f}), " + _bound_claim(results, seqs, base, fit, seen + back, 3))
 
 
 def unseen_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str = "stage2") -> str:
@@ -65,18 +71,12 @@ def unseen_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str 
     if not all((s, v) in results and "chamfer_pts_unseen" in results[(s, v)]
                for s in seqs for v in ("oracle", base, fit)):
         return ""
-
-    def mean(v: str, key: str) -> float:
-        return float(np.mean([results[(s, v)][key] for s in seqs])) * 1e4
-
-    seen = mean("oracle", "chamfer_pts") - mean("oracle", "chamfer_pts_unseen")
-    hidden = mean(fit, "chamfer_pts_unseen")
-    bound = seen + hidden
-    b, f = mean(base, "chamfer_pts"), mean(fit, "chamfer_pts")
+    seen = _mean(results, seqs, "oracle", "chamfer_pts") - _mean(results, seqs, "oracle", "chamfer_pts_unseen")
+    hidden = _mean(results, seqs, fit, "chamfer_pts_unseen")
     return (f"Observability bound: with what no keyframe shows (the back, and hair outside the image of "
-            f"every keyframe) as fitted ({hidden:.4f}; {LABELS[base]}: {mean(base, 'chamfer_pts_unseen'):.4f}) "
-            f"and the rest at the floor ({seen:.4f}), {LABELS[fit]} would reach {bound:.4f}: at most "
-            f"{b / bound:.2f}x lower than {LABELS[base]} ({b:.4f}); measured {f:.4f}, {b / f:.2f}x.")
+            f"every keyframe) as fitted ({hidden:.4f}; {LABELS[base]}: "
+            f"{_mean(results, seqs, base, 'chamfer_pts_unseen'):.4f}) and the rest at the floor ({seen:.4f}), "
+            + _bound_claim(results, seqs, base, fit, seen + hidden, 4))
 
 
 def tip_table(results: dict, seqs: list[str], variants: list[str]) -> str:
