@@ -219,16 +219,15 @@ def unseen_test(seq: dict):
     back region (azimuth from the face >= 120 degrees, :data:`REGIONS`) or outside the image
     of every keyframe (camera and head poses of the front stages; long hair runs off the bottom of
     the frame). A function (M,3) -> (M,) bool for ``evaluate_strands(unseen=...)``."""
-    from vid2haircut.camera import load_cameras
-    from vid2haircut.evaluate.metrics import REGIONS, _region_of
+    from vid2haircut.evaluate.metrics import REGIONS, region_of
+    from vid2haircut.fit.data import load_fit_camera
     from vid2haircut.front.headfile import load_head_fit
-    from vid2haircut.io.sequence import calibration_path
+    from vid2haircut.front.keyframes import load_keyframes
 
     fit, extra = load_head_fit(seq["head"])
-    cams = load_cameras(calibration_path(seq["root"], seq["subject"]))
-    cam = cams[str(extra.get("serial"))] if str(extra.get("serial")) in cams else next(iter(cams.values()))
+    cam = load_fit_camera(seq["root"], seq["subject"], extra.get("serial") or load_keyframes(seq["keyframes"]).serial)
     poses = np.asarray(fit.world_from_head, np.float64)
-    back = [i for i, (name, _, _) in enumerate(REGIONS) if name == "back"][0]
+    back = [name for name, _, _ in REGIONS].index("back")
 
     def test(points: np.ndarray) -> np.ndarray:
         inside = np.zeros(len(points), bool)
@@ -236,7 +235,7 @@ def unseen_test(seq: dict):
             uv, z = cam.project(points @ pose[:3, :3].T + pose[:3, 3])
             inside |= ((z > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] < cam.width - 0.5)
                        & (uv[:, 1] >= -0.5) & (uv[:, 1] < cam.height - 0.5))
-        return ~inside | (_region_of(points) == back)
+        return ~inside | (region_of(points) == back)
 
     return test
 
@@ -250,17 +249,14 @@ def score(pred: Path, gt: Path, cache: Path, unseen=None) -> dict:
     from vid2haircut.io.atomic import write_json
     from vid2haircut.io.strand_formats import load_strands
 
-    m = {}
     if cache.is_file() and cache.stat().st_mtime >= pred.stat().st_mtime:
         m = json.loads(cache.read_text())
-        if m.get("max_points") != 0:     # scored through a random subset (biased upwards): redo
-            m = {}
-        if "chamfer_pts_back" in m and "tip_dy_back" in m and ("chamfer_pts_unseen" in m or unseen is None):
+        # a score through a random subset (biased upwards, ``max_points`` != 0) or without a part asked for is redone
+        if m.get("max_points") == 0 and "tip_dy_back" in m and (unseen is None or "chamfer_pts_unseen" in m):
             return m
     p, g = load_strands(pred), load_strands(gt)
-    if "chamfer_pts_back" not in m or ("chamfer_pts_unseen" not in m and unseen is not None):
-        m = evaluate_strands(p, g, max_points=None, by_region=True, unseen=unseen)
-        m["max_points"] = 0
+    m = evaluate_strands(p, g, max_points=None, by_region=True, unseen=unseen)
+    m["max_points"] = 0
     hp, hg = tip_heights(p), tip_heights(g)
     m.update({f"tip_dy_{r}": hp[r] - hg[r] for r in hp})
     write_json(cache, m)

@@ -36,7 +36,7 @@ from vid2haircut.io.strand_formats import load_strands
 from vid2haircut.strands import StrandSet
 
 __all__ = ["THRESHOLDS", "REGIONS", "OrientedPoints", "oriented_points", "evaluate_strands", "evaluate_files",
-           "tip_heights"]
+           "tip_heights", "region_of"]
 
 #: (radius metres, angle degrees) pairs of the oriented-point precision / recall (HairGS).
 THRESHOLDS: tuple[tuple[float, float], ...] = ((0.002, 20.0), (0.003, 30.0), (0.004, 40.0))
@@ -124,7 +124,7 @@ def _tag(radius: float, angle: float) -> str:
 REGIONS: tuple[tuple[str, float, float], ...] = (("front", 0.0, 60.0), ("side", 60.0, 120.0), ("back", 120.0, 181.0))
 
 
-def _region_of(points: np.ndarray) -> np.ndarray:
+def region_of(points: np.ndarray) -> np.ndarray:
     """(M,3) head-frame points -> (M,) index into :data:`REGIONS` by azimuth about +y from +z."""
     az = np.degrees(np.abs(np.arctan2(points[:, 0], points[:, 2])))
     out = np.zeros(len(points), np.int64)
@@ -147,7 +147,7 @@ def tip_heights(strands: StrandSet) -> dict[str, float]:
     if len(pts) == 0:
         return {name: float("nan") for name, _, _ in REGIONS}
     tips = pts[:, -1]
-    reg = _region_of(pts[:, 0])
+    reg = region_of(pts[:, 0])
     return {name: float(np.median(tips[reg == i, 1])) if np.any(reg == i) else float("nan")
             for i, (name, _, _) in enumerate(REGIONS)}
 
@@ -201,7 +201,7 @@ def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_po
         out[f"recall_{tag}"] = float(rc)
         out[f"f1_{tag}"] = float(2 * pr * rc / (pr + rc)) if pr + rc > 0 else 0.0
     if by_region:
-        rp, rg = _region_of(p.points), _region_of(g.points)
+        rp, rg = region_of(p.points), region_of(g.points)
         for i, (name, _, _) in enumerate(REGIONS):
             out[f"chamfer_pts_{name}"] = float(d_pg[rp == i].sum() / len(d_pg) + d_gp[rg == i].sum() / len(d_gp))
     if unseen is not None:

@@ -19,12 +19,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
 
-__all__ = ["FitData", "load_fit_data", "downsample_targets", "scale_intrinsics", "order_keyframes", "make_fit_data"]
+if TYPE_CHECKING:
+    from vid2haircut.camera import Camera
+
+__all__ = ["FitData", "load_fit_data", "load_fit_camera", "downsample_targets", "scale_intrinsics", "order_keyframes", "make_fit_data"]
 
 
 @dataclass
@@ -187,6 +190,22 @@ def make_fit_data(frames: list[int], targets: list[dict[str, np.ndarray]], K: np
                    (np.asarray(K, np.float64), np.asarray(world_2_cam, np.float64)))
 
 
+def load_fit_camera(dataset_root: str | Path, subject: str, serial: str) -> Camera:
+    """The calibrated camera ``serial`` of ``<subject>/calibration/camera_params.json``.
+
+    Raises:
+        ValueError naming the calibration file when it has no such camera.
+    """
+    from vid2haircut.camera import load_cameras
+    from vid2haircut.io.sequence import calibration_path
+
+    calib = calibration_path(dataset_root, subject)
+    cams = load_cameras(calib)
+    if str(serial) not in cams:
+        raise ValueError(f"{calib}: camera serial '{serial}' not in the calibration (has {sorted(cams)})")
+    return cams[str(serial)]
+
+
 def load_fit_data(dataset_root: str | Path, subject: str, keyframes_json: str | Path, head_npz: str | Path,
                   targets_dir: str | Path, size: int = 160, n_keyframes: int | None = None,
                   serial: str | None = None, occlude_head: bool = True,
@@ -205,11 +224,9 @@ def load_fit_data(dataset_root: str | Path, subject: str, keyframes_json: str | 
     Raises:
         FileNotFoundError / ValueError naming the file that is missing or wrong.
     """
-    from vid2haircut.camera import load_cameras
     from vid2haircut.front.headfile import load_head_fit, resolve_head
     from vid2haircut.front.keyframes import load_keyframes
     from vid2haircut.front.targets.build import load_targets
-    from vid2haircut.io.sequence import calibration_path
 
     sel = load_keyframes(keyframes_json)
     fit, extra = load_head_fit(head_npz)
@@ -218,12 +235,7 @@ def load_fit_data(dataset_root: str | Path, subject: str, keyframes_json: str | 
         raise ValueError(f"{head_npz}: the reference keyframe {sel.reference} of {keyframes_json} has no head pose "
                          f"(fitted frames {fitted})")
     order = order_keyframes([t for t in sel.frames if t in fitted], sel.reference, sel.scores, n_keyframes)
-    calib = calibration_path(dataset_root, subject)
-    cams = load_cameras(calib)
-    serial = str(serial or extra.get("serial") or sel.serial)
-    if serial not in cams:
-        raise ValueError(f"{calib}: camera serial '{serial}' not in the calibration (has {sorted(cams)})")
-    cam = cams[serial]
+    cam = load_fit_camera(dataset_root, subject, str(serial or extra.get("serial") or sel.serial))
     targets = []
     for t in order:
         path = Path(targets_dir) / f"frame_{t:05d}.npz"
