@@ -18,8 +18,9 @@ then the fitting variants through the same file-level entry points as the pipeli
 
 Each result is scored against the ground truth (Chamfer_pts in m^2, Chamfer_angle in rad; see
 ``shared/docs/method.md``) and a Markdown table is printed (and written to ``--out`` when given),
-followed by the mean Chamfer_pts of each variant split by head region (front / side / back; the
-keyframes turn the head up to ~64 degrees, so the back is never seen) and by the median tip height
+followed by the mean Chamfer_pts of each variant split by head region (front / side / back; at
+the generator's default the keyframes turn the head up to ~64 degrees, so the back is never seen;
+``--yaw-max`` turns it further) and by the median tip height
 of the strands rooted in each region against the ground truth's (hair that is too short ends too
 high). ``--sway-gain`` sets how
 strongly the hair lags the head (``SynthConfig.sway_gain``; the generator default is 0.012, the
@@ -76,6 +77,7 @@ STAGE1_VARIANTS = {
 DEFAULT_VARIANTS = ["oracle", "prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness",
                     "no_visibility", "no_pca", "segment_gate", "kf1", "kf3"]
 HEAD_FILL = 0.6  # fraction of the image height the head (crown to neck) fills (the generator's default)
+YAW_MAX = 60.0  # largest head turn of the sequences, degrees (the generator's default; see --yaw-max)
 SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
 
@@ -105,7 +107,7 @@ def seq_files(work: Path, subject: str) -> dict:
 
 
 def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN,
-            head_fill: float = HEAD_FILL, n_keyframes: int = 6) -> dict:
+            head_fill: float = HEAD_FILL, n_keyframes: int = 6, yaw_max: float = YAW_MAX) -> dict:
     """Synthesise one sequence and run the front stages (cached) with ``n_keyframes`` keyframes."""
     from vid2haircut.front.keyframes import KeyframeConfig
     from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
@@ -117,12 +119,14 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
     if meta.is_file():
         cached = json.loads(meta.read_text())
         for key, have, want in (("sway_gain", cached["motion"].get("sway_gain"), sway_gain),
-                                ("head_fill", cached["config"].get("head_fill"), head_fill)):
+                                ("head_fill", cached["config"].get("head_fill"), head_fill),
+                                ("yaw_max_deg", cached["motion"].get("yaw_max_deg"), yaw_max)):
             if have is None or abs(have - want) > 1e-12:
                 raise SystemExit(f"{meta}: cached sequence has {key} {have}, not {want}; use another --work")
     else:
         synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames,
-                                                               sway_gain=sway_gain, head_fill=head_fill),
+                                                               sway_gain=sway_gain, head_fill=head_fill,
+                                                               yaw_max_deg=yaw_max),
                             overwrite=True)
     if not (front / "keyframes.json").is_file():
         run_keyframes(root, subject, "HAIR", front, cfg=KeyframeConfig(num_keyframes=n_keyframes))
@@ -278,6 +282,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--head-fill", type=float, default=HEAD_FILL,
                    help="fraction of the image height that the head fills (SynthConfig.head_fill; smaller "
                         "shows more of long hair, which runs off the bottom of the image at the default)")
+    p.add_argument("--yaw-max", type=float, default=YAW_MAX,
+                   help="largest head turn of the synthesised sequences, degrees (SynthConfig.yaw_max_deg; "
+                        "larger shows more of the back, which no keyframe sees at the default)")
     p.add_argument("--keyframes", type=int, default=6,
                    help="keyframes the front stages select (KeyframeConfig.num_keyframes); Stage 2 uses "
                         "Stage2Config.n_keyframes of them (set it with --settings)")
@@ -310,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
     results, times, per_seed = {}, {}, {}
     for name in names:
         t0 = time.perf_counter()
-        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes)
+        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes, args.yaw_max)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
         unseen = unseen_test(seq)
         for v in variants:
@@ -331,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
     bound = "".join(f"{b}\n\n" for b in (region_bound(results, names), unseen_bound(results, names)) if b)
     text = (f"Chamfer_pts (1e-4 m^2) / Chamfer_angle (rad) per sequence, lower is better.\n\n{md}\n\n"
             f"Mean Chamfer_pts (1e-4 m^2) by head region (azimuth from the face: front < 60 deg, "
-            f"side 60-120 deg, back >= 120 deg; the keyframes turn up to ~64 deg):\n\n{regions}\n\n"
+            f"side 60-120 deg, back >= 120 deg; the head turns up to {args.yaw_max:g} deg):\n\n{regions}\n\n"
             f"{bound}"
             f"Median tip height of the strands rooted in each region above the ground truth's, cm (mean over "
             f"the sequences; positive = the hair ends too high, i.e. is too short):\n\n"

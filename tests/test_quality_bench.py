@@ -113,3 +113,14 @@ def test_sequence_names_take_any_family_and_an_evaluation_seed(quality):
         quality.parse_sequence("bob_12")
     with pytest.raises(SystemExit, match="expected <family>_<seed>"):
         quality.parse_sequence("mullet_1000")
+
+
+def test_cached_sequences_of_another_capture_are_refused(quality, tmp_path):
+    seq = quality.seq_files(tmp_path, "bob_1000")
+    seq["gt"].parent.mkdir(parents=True)
+    meta = {"motion": {"sway_gain": 0.03, "yaw_max_deg": 60.0}, "config": {"head_fill": 0.6}}
+    seq["gt"].with_name("meta.json").write_text(json.dumps(meta))
+    with pytest.raises(SystemExit, match="yaw_max_deg 60.0, not 90.0"):
+        quality.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, yaw_max=90.0)
+    with pytest.raises(SystemExit, match="head_fill 0.6, not 0.5"):
+        quality.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, head_fill=0.5)
