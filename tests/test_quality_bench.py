@@ -4,6 +4,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -124,3 +125,19 @@ def test_cached_sequences_of_another_capture_are_refused(quality, tmp_path):
         quality.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, yaw_max=90.0)
     with pytest.raises(SystemExit, match="head_fill 0.6, not 0.5"):
         quality.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, head_fill=0.5)
+
+
+def test_gap_profile_parts_add_up_and_find_the_tips():
+    gap = _bench("gap_profile")
+    s = 3
+    t = np.linspace(0.0, 1.0, gap.N_POINTS)
+    gt = np.concatenate([np.stack([np.full_like(t, 0.01 * k), -0.2 * t, np.zeros_like(t)], 1) for k in range(s)])
+    sdf = 0.1 * np.tile(t, s)                                # distance from the head grows along each strand
+    total, by_sdf, by_arc = gap.profile(gt, sdf, gt)
+    assert total == 0.0 and not any(by_sdf) and not any(by_arc)
+    short = gt.reshape(s, gap.N_POINTS, 3)[:, :60].reshape(-1, 3)   # the prediction stops at 60% of each strand
+    total, by_sdf, by_arc = gap.profile(gt, sdf, short)
+    assert total > 0.0
+    assert np.isclose(sum(by_sdf), total) and np.isclose(sum(by_arc), total)
+    assert by_arc[0] == by_arc[1] == 0.0 and by_arc[3] > by_arc[2] > 0.0
+    assert by_sdf[-1] == max(by_sdf)                          # the missing ends lie beyond 5 cm

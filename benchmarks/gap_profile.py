@@ -1,0 +1,71 @@
+"""Where the ground-truth-to-prediction part of Chamfer_pts comes from, for cached quality runs.
+
+For each sequence of a ``benchmarks/quality.py`` work folder and each variant, every ground-truth
+point's squared distance to the nearest predicted point (the ``chamfer_pts_gt_to_pred`` term, every
+point, exact) is split two ways: by the point's distance from the fitted head surface (0-1, 1-2,
+2-3, 3-5, over 5 cm) and by its position along its strand (quarters of the 100 points, root first).
+Each part is the share of the mean, so the parts of a row add up to the term (1e-4 m^2).
+
+    .venv/bin/python benchmarks/gap_profile.py --work results/benchmarks/quality_v12 \\
+        --sequences shoulder_straight_1001,wavy_1004
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import quality  # noqa: E402  (the benchmark's sequence layout)
+
+SDF_BINS_M = (0.0, 0.01, 0.02, 0.03, 0.05, np.inf)
+N_POINTS = 100
+
+
+def profile(gt_points: np.ndarray, gt_sdf: np.ndarray, pred_points: np.ndarray) -> tuple[float, list, list]:
+    """(gt->pred term, parts by head distance, parts by strand quarter), all in 1e-4 m^2.
+
+    Args:
+        gt_points: (S*100,3) ground-truth points, strand by strand, root first. gt_sdf: (S*100,)
+            their signed distance from the head surface, metres. pred_points: (M,3).
+    """
+    d2 = cKDTree(pred_points).query(gt_points, workers=-1)[0] ** 2
+    n = len(d2)
+    by_sdf = np.digitize(np.maximum(gt_sdf, 0.0), SDF_BINS_M[1:-1])
+    pos = np.arange(n) % N_POINTS
+    sdf_parts = [float(d2[by_sdf == i].sum() / n * 1e4) for i in range(len(SDF_BINS_M) - 1)]
+    arc_parts = [float(d2[(pos >= a) & (pos < a + N_POINTS // 4)].sum() / n * 1e4) for a in range(0, N_POINTS, N_POINTS // 4)]
+    return float(d2.mean() * 1e4), sdf_parts, arc_parts
+
+
+def main(argv: list[str] | None = None) -> int:
+    from vid2haircut.evaluate.metrics import oriented_points
+    from vid2haircut.front.headfile import load_head_fit, resolve_head
+    from vid2haircut.io.strand_formats import load_strands
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--work", required=True, help="a benchmarks/quality.py work folder")
+    p.add_argument("--sequences", required=True, help="comma-separated sequence names")
+    p.add_argument("--variants", default="oracle,stage1,stage2", help="comma-separated cached variants")
+    args = p.parse_args(argv)
+    work = Path(args.work)
+    print("sequence | variant | gt->pred | head distance 0-1 / 1-2 / 2-3 / 3-5 / >5 cm | strand quarters 1-4")
+    for name in args.sequences.split(","):
+        seq = quality.seq_files(work, name)
+        gt = oriented_points(load_strands(seq["gt"]), N_POINTS).points
+        fit, _ = load_head_fit(seq["head"])
+        sdf = np.asarray(resolve_head(fit.head_model, fit.shape).sdf_np(gt)).ravel()
+        for v in args.variants.split(","):
+            pred = oriented_points(load_strands(work / "runs" / name / v / "strands.npz"), N_POINTS).points
+            total, by_sdf, by_arc = profile(gt, sdf, pred)
+            print(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "
+                  f"{' / '.join(f'{x:.4f}' for x in by_arc)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
