@@ -5,6 +5,9 @@ point's squared distance to the nearest predicted point (the ``chamfer_pts_gt_to
 point, exact) is split two ways: by the point's distance from the fitted head surface (0-1, 1-2,
 2-3, 3-5, over 5 cm) and by its position along its strand (quarters of the 100 points, root first).
 Each part is the share of the mean, so the parts of a row add up to the term (1e-4 m^2).
+A second table projects every strand's tip into the reference keyframe (fitted head pose,
+full-resolution camera): the share of tips inside the image, the share of those on the target hair
+mask, and their median image row (pixels from the top), for the ground truth and each variant.
 
     .venv/bin/python benchmarks/gap_profile.py --work results/benchmarks/quality_v12 \\
         --sequences shoulder_straight_1001,wavy_1004
@@ -42,9 +45,22 @@ def profile(gt_points: np.ndarray, gt_sdf: np.ndarray, pred_points: np.ndarray) 
     return float(d2.mean() * 1e4), sdf_parts, arc_parts
 
 
+def tip_rows(tips: np.ndarray, camera, world_from_head: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
+    """(share in the image, share of those on ``mask``, median row of those) of (S,3) head-frame tips."""
+    uv, z = camera.project(tips @ world_from_head[:3, :3].T + world_from_head[:3, 3])
+    u, v = np.round(uv[:, 0]).astype(int), np.round(uv[:, 1]).astype(int)
+    ok = (z > 0) & (u >= 0) & (u < mask.shape[1]) & (v >= 0) & (v < mask.shape[0])
+    if not ok.any():
+        return 0.0, float("nan"), float("nan")
+    return float(ok.mean()), float(mask[v[ok], u[ok]].mean()), float(np.median(v[ok]))
+
+
 def main(argv: list[str] | None = None) -> int:
     from vid2haircut.evaluate.metrics import oriented_points
+    from vid2haircut.fit.data import load_fit_camera
     from vid2haircut.front.headfile import load_head_fit, resolve_head
+    from vid2haircut.front.keyframes import load_keyframes
+    from vid2haircut.front.targets.build import load_targets
     from vid2haircut.io.strand_formats import load_strands
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -53,17 +69,32 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--variants", default="oracle,stage1,stage2", help="comma-separated cached variants")
     args = p.parse_args(argv)
     work = Path(args.work)
-    print("sequence | variant | gt->pred | head distance 0-1 / 1-2 / 2-3 / 3-5 / >5 cm | strand quarters 1-4")
+    variants = args.variants.split(",")
+    gaps, tips = [], []
     for name in args.sequences.split(","):
         seq = quality.seq_files(work, name)
-        gt = oriented_points(load_strands(seq["gt"]), N_POINTS).points
-        fit, _ = load_head_fit(seq["head"])
+        gt_strands = load_strands(seq["gt"])
+        gt = oriented_points(gt_strands, N_POINTS).points
+        fit, extra = load_head_fit(seq["head"])
         sdf = np.asarray(resolve_head(fit.head_model, fit.shape).sdf_np(gt)).ravel()
-        for v in args.variants.split(","):
-            pred = oriented_points(load_strands(work / "runs" / name / v / "strands.npz"), N_POINTS).points
-            total, by_sdf, by_arc = profile(gt, sdf, pred)
-            print(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "
-                  f"{' / '.join(f'{x:.4f}' for x in by_arc)}")
+        ref = load_keyframes(seq["keyframes"])
+        cam = load_fit_camera(seq["root"], name, extra.get("serial") or ref.serial)
+        pose = fit.world_from_head[[int(t) for t in fit.frames].index(ref.reference)]
+        mask = np.asarray(load_targets(Path(seq["targets"]) / f"frame_{ref.reference:05d}.npz")["mask"]) > 0.5
+        for v in ["ground truth"] + variants:
+            strands = gt_strands if v == "ground truth" else load_strands(work / "runs" / name / v / "strands.npz")
+            inside, on_mask, row = tip_rows(oriented_points(strands, N_POINTS).points[N_POINTS - 1::N_POINTS],
+                                            cam, pose, mask)
+            tips.append(f"{name} | {v} | {inside:.2f} | {on_mask:.2f} | {row:.0f}")
+            if v != "ground truth":
+                pred = oriented_points(strands, N_POINTS).points
+                total, by_sdf, by_arc = profile(gt, sdf, pred)
+                gaps.append(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "
+                            f"{' / '.join(f'{x:.4f}' for x in by_arc)}")
+    print("sequence | variant | gt->pred | head distance 0-1 / 1-2 / 2-3 / 3-5 / >5 cm | strand quarters 1-4")
+    print("\n".join(gaps))
+    print("\nsequence | strands | tips in the reference image | of those on the target mask | median tip row (px)")
+    print("\n".join(tips))
     return 0
 
 

@@ -141,3 +141,19 @@ def test_gap_profile_parts_add_up_and_find_the_tips():
     assert np.isclose(sum(by_sdf), total) and np.isclose(sum(by_arc), total)
     assert by_arc[0] == by_arc[1] == 0.0 and by_arc[3] > by_arc[2] > 0.0
     assert by_sdf[-1] == max(by_sdf)                          # the missing ends lie beyond 5 cm
+
+
+def test_gap_profile_projects_tips_into_the_reference_view():
+    from vid2haircut.camera import Camera
+
+    gap = _bench("gap_profile")
+    K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 50.0], [0.0, 0.0, 1.0]])
+    cam = Camera(K=K, world_2_cam=np.eye(4), width=100, height=100)
+    pose = np.eye(4)
+    pose[2, 3] = 1.0                                       # the head 1 m in front of the camera
+    mask = np.zeros((100, 100), bool)
+    mask[60:, :] = True                                    # hair in the lower part of the image
+    tips = np.array([[0.0, 0.2, 0.0], [0.0, 0.3, 0.0], [0.0, 0.1, 0.0], [0.0, 0.9, 0.0]])   # rows 70, 80, 60, 140
+    inside, on_mask, row = gap.tip_rows(tips, cam, pose, mask)
+    assert inside == 0.75 and on_mask == 1.0 and row == 70.0
+    assert gap.tip_rows(tips[3:], cam, pose, mask)[0] == 0.0
