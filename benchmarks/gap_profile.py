@@ -73,8 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     gaps, tips = [], []
     for name in args.sequences.split(","):
         seq = quality.seq_files(work, name)
-        gt_strands = load_strands(seq["gt"])
-        gt = oriented_points(gt_strands, N_POINTS).points
+        gt = oriented_points(load_strands(seq["gt"]), N_POINTS).points
         fit, extra = load_head_fit(seq["head"])
         sdf = np.asarray(resolve_head(fit.head_model, fit.shape).sdf_np(gt)).ravel()
         ref = load_keyframes(seq["keyframes"])
@@ -82,13 +81,12 @@ def main(argv: list[str] | None = None) -> int:
         pose = fit.world_from_head[[int(t) for t in fit.frames].index(ref.reference)]
         mask = np.asarray(load_targets(Path(seq["targets"]) / f"frame_{ref.reference:05d}.npz")["mask"]) > 0.5
         for v in ["ground truth"] + variants:
-            strands = gt_strands if v == "ground truth" else load_strands(work / "runs" / name / v / "strands.npz")
-            inside, on_mask, row = tip_rows(oriented_points(strands, N_POINTS).points[N_POINTS - 1::N_POINTS],
-                                            cam, pose, mask)
+            pts = gt if v == "ground truth" else oriented_points(
+                load_strands(work / "runs" / name / v / "strands.npz"), N_POINTS).points
+            inside, on_mask, row = tip_rows(pts[N_POINTS - 1::N_POINTS], cam, pose, mask)
             tips.append(f"{name} | {v} | {inside:.2f} | {on_mask:.2f} | {row:.0f}")
             if v != "ground truth":
-                pred = oriented_points(strands, N_POINTS).points
-                total, by_sdf, by_arc = profile(gt, sdf, pred)
+                total, by_sdf, by_arc = profile(gt, sdf, pts)
                 gaps.append(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "
                             f"{' / '.join(f'{x:.4f}' for x in by_arc)}")
     print("sequence | variant | gt->pred | head distance 0-1 / 1-2 / 2-3 / 3-5 / >5 cm | strand quarters 1-4")

@@ -49,8 +49,8 @@ def region_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str 
     """One sentence: the lowest Chamfer_pts ``fit`` could reach with its back region as fitted and its
     front and side at the representation floor (``oracle``), and the ratio ``base`` / that bound.
 
-    At the generator's default the keyframes turn to about 64 degrees, so the back is seen at most at grazing angles and stays
-    close to where the single view left it; this bounds the gain over ``base`` that better fitting
+    At the generator's default the keyframes turn to about 64 degrees, so the back is seen at most
+    at grazing angles and stays close to where the single view left it; this bounds the gain over ``base`` that better fitting
     of the seen regions alone can give. Returns "" unless all three variants were scored on every
     sequence.
     """
