@@ -287,3 +287,22 @@ def test_files_cli_outputs_and_resume(toy, tmp_path):
                                                                 "render": {"n_points": 16, "size": 40}})])
     assert args.func(args) == 0
     assert json.loads((out / "stage2.json").read_text())["keyframes"] == [0]
+
+
+def test_silhouette_opacity_thins_only_the_silhouette(toy):
+    """The silhouette term sees translucent guides (a second render); direction, depth and visibility
+    stay those of the opaque render, and the silhouette still passes a gradient to the points."""
+    model = Stage2Model(toy.data, toy.codec, _cfg(), *_start(toy))
+    pts = model.canonical()[:, model.layout.render_index].detach()[None].requires_grad_(True)
+    frames = torch.tensor([0])
+    opaque = render_frames(pts, toy.data, frames, apply_overrides(model.cfg.render, {"silhouette_opacity": 1.0}))
+    thin = render_frames(pts, toy.data, frames, apply_overrides(model.cfg.render, {"silhouette_opacity": 0.3}))
+    s_thin, s_opaque = thin.silhouette.detach(), opaque.silhouette.detach()
+    assert float(s_opaque.max()) > 0.9
+    assert bool((s_thin <= s_opaque + 1e-6).all())
+    # translucent guides cover less: only overlaps of several reach full coverage
+    assert float(s_thin.mean()) < 0.8 * float(s_opaque.mean())
+    for name in ("direction", "depth", "mask", "visibility"):
+        assert torch.equal(getattr(thin, name), getattr(opaque, name)), name
+    (g,) = torch.autograd.grad(thin.silhouette.sum(), pts)
+    assert float(g.abs().sum()) > 0.0

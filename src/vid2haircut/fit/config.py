@@ -85,6 +85,14 @@ class RenderSettings:
     strand_width: float = 0.004
     """Short-axis size of each guide Gaussian, metres: a guide stands for the strands of its texel
     (about 6.5 mm apart on a 32x32 map), so it is drawn much wider than one hair (0.35 mm)."""
+    silhouette_opacity: float = 0.3
+    """Peak opacity of the guide Gaussians in the silhouette term (below 1: a second, silhouette-only
+    render; direction, depth and visibility come from the opaque render). A guide stands for ~20
+    hairs and is drawn 4 mm wide, so one opaque guide covers its pixels fully and the silhouette is
+    met wherever a single guide passes: it cannot tell where most of the hair ends. At 0.3 a pixel
+    is covered only where several guides overlap, as where many hairs do, and thins where few
+    remain, as the target masks do at the ends. Measured with ``benchmarks/quality.py`` and
+    ``benchmarks/stage2_sweep.py`` (first draw, seed 0, exact Chamfer_pts 1e-4 m^2): see the README."""
     occlude_head: bool = True
     """Hide hair behind the head mesh (rendered once per keyframe)."""
     bins: int = 16

@@ -84,10 +84,17 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     """
     fr = frames.to(data.K.device)
     head_depth = data.head_depth[fr] if data.head_depth is not None else None
-    return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
-                          strand_width=settings.strand_width, head_depth=head_depth, bins=settings.bins,
-                          depth_bin=settings.depth_bin, vis_weight=settings.vis_weight,
-                          shading=shading)
+
+    def draw(opacity: float, shade: bool) -> StrandRender:
+        return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
+                              strand_width=settings.strand_width, opacity=opacity, head_depth=head_depth,
+                              bins=settings.bins, depth_bin=settings.depth_bin, vis_weight=settings.vis_weight,
+                              shading=shade)
+
+    out = draw(1.0, shading)
+    if settings.silhouette_opacity < 1.0:
+        out = out._replace(silhouette=draw(settings.silhouette_opacity, False).silhouette)
+    return out
 
 
 def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, Tensor]:
