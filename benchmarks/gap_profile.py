@@ -8,6 +8,8 @@ Each part is the share of the mean, so the parts of a row add up to the term (1e
 A second table projects every strand's tip into the reference keyframe (fitted head pose,
 full-resolution camera): the share of tips inside the image, the share of those on the target hair
 mask, and their median image row (pixels from the top), for the ground truth and each variant.
+A third table gives each variant's strand length against the ground truth's (each strand matched
+to the ground-truth strand with the nearest scalp uv), mean by the root's head region, in cm.
 
     .venv/bin/python benchmarks/gap_profile.py --work results/benchmarks/quality_v12 \\
         --sequences shoulder_straight_1001,wavy_1004
@@ -55,6 +57,19 @@ def tip_rows(tips: np.ndarray, camera, world_from_head: np.ndarray, mask: np.nda
     return float(ok.mean()), float(mask[v[ok], u[ok]].mean()), float(np.median(v[ok]))
 
 
+def length_errors(gt_points: np.ndarray, gt_uv: np.ndarray, points: np.ndarray, uv: np.ndarray) -> list[float]:
+    """Mean length (cm) of strands (S,P,3) minus that of the ground-truth strand (G,Q,3) with the
+    nearest root uv, per root head region (:data:`REGIONS` order; NaN where none is rooted)."""
+    from vid2haircut.evaluate.metrics import REGIONS, region_of
+
+    def length(p: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.diff(p, axis=1), axis=2).sum(1)
+
+    d = (length(points) - length(gt_points)[cKDTree(gt_uv).query(uv)[1]]) * 100.0
+    reg = region_of(points[:, 0])
+    return [float(d[reg == i].mean()) if np.any(reg == i) else float("nan") for i in range(len(REGIONS))]
+
+
 def main(argv: list[str] | None = None) -> int:
     from vid2haircut.evaluate.metrics import oriented_points
     from vid2haircut.fit.data import load_fit_camera
@@ -70,10 +85,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     work = Path(args.work)
     variants = args.variants.split(",")
-    gaps, tips = [], []
+    gaps, tips, lengths = [], [], []
     for name in args.sequences.split(","):
         seq = quality.seq_files(work, name)
-        gt = oriented_points(load_strands(seq["gt"]), N_POINTS).points
+        gt_set = load_strands(seq["gt"])
+        gt = oriented_points(gt_set, N_POINTS).points
         fit, extra = load_head_fit(seq["head"])
         sdf = np.asarray(resolve_head(fit.head_model, fit.shape).sdf_np(gt)).ravel()
         ref = load_keyframes(seq["keyframes"])
@@ -81,11 +97,13 @@ def main(argv: list[str] | None = None) -> int:
         pose = fit.world_from_head[[int(t) for t in fit.frames].index(ref.reference)]
         mask = np.asarray(load_targets(Path(seq["targets"]) / f"frame_{ref.reference:05d}.npz")["mask"]) > 0.5
         for v in ["ground truth"] + variants:
-            pts = gt if v == "ground truth" else oriented_points(
-                load_strands(work / "runs" / name / v / "strands.npz"), N_POINTS).points
+            pred = None if v == "ground truth" else load_strands(work / "runs" / name / v / "strands.npz")
+            pts = gt if pred is None else oriented_points(pred, N_POINTS).points
             inside, on_mask, row = tip_rows(pts[N_POINTS - 1::N_POINTS], cam, pose, mask)
             tips.append(f"{name} | {v} | {inside:.2f} | {on_mask:.2f} | {row:.0f}")
-            if v != "ground truth":
+            if pred is not None:
+                err = length_errors(gt_set.points, gt_set.attributes["uv"], pred.points, pred.attributes["uv"])
+                lengths.append(f"{name} | {v} | {' / '.join(f'{x:+.1f}' for x in err)}")
                 total, by_sdf, by_arc = profile(gt, sdf, pts)
                 gaps.append(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "
                             f"{' / '.join(f'{x:.4f}' for x in by_arc)}")
@@ -93,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(gaps))
     print("\nsequence | strands | tips in the reference image | of those on the target mask | median tip row (px)")
     print("\n".join(tips))
+    print("\nsequence | variant | strand length minus the ground truth's, cm, roots front / side / back")
+    print("\n".join(lengths))
     return 0
 
 

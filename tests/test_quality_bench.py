@@ -143,6 +143,23 @@ def test_gap_profile_parts_add_up_and_find_the_tips():
     assert by_sdf[-1] == max(by_sdf)                          # the missing ends lie beyond 5 cm
 
 
+def test_gap_profile_length_errors_match_strands_by_uv_and_region():
+    gap = _bench("gap_profile")
+    t = np.linspace(0.0, 1.0, 10)[:, None]
+    down = np.array([0.0, -1.0, 0.0])
+
+    def strand(root, length):
+        return np.asarray(root) + t * length * down
+
+    # roots: one at the front (+z), one at the back (-z) of the head frame
+    gt = np.stack([strand([0.0, 0.1, 0.1], 0.30), strand([0.0, 0.1, -0.1], 0.20)])
+    gt_uv = np.array([[0.5, 0.2], [0.5, 0.8]])
+    pred = np.stack([strand([0.0, 0.1, -0.1], 0.25), strand([0.0, 0.1, 0.1], 0.26)])   # listed back first
+    pred_uv = np.array([[0.5, 0.79], [0.5, 0.21]])
+    front, side, back = gap.length_errors(gt, gt_uv, pred, pred_uv)
+    assert np.isclose(front, -4.0) and np.isclose(back, 5.0) and np.isnan(side)
+
+
 def test_gap_profile_projects_tips_into_the_reference_view():
     from vid2haircut.camera import Camera
 

@@ -91,8 +91,12 @@ class RenderSettings:
     hairs and is drawn 4 mm wide, so one opaque guide covers its pixels fully and the silhouette is
     met wherever a single guide passes: it cannot tell where most of the hair ends. At 0.3 a pixel
     is covered only where several guides overlap, as where many hairs do, and thins where few
-    remain, as the target masks do at the ends. Measured with ``benchmarks/quality.py`` and
-    ``benchmarks/stage2_sweep.py`` (first draw, seed 0, exact Chamfer_pts 1e-4 m^2): see the README."""
+    remain, as the target masks do at the ends. Measured on the quality benchmark's first draw
+    (seed 0, exact Chamfer_pts 1e-4 m^2): opaque, Stage 1 0.0999 and Stage 2 0.0642; at 0.3,
+    0.0937 and 0.0589 (shoulder-length 0.078 -> 0.061, bangs 0.092 -> 0.080, wavy 0.090 -> 0.093).
+    Translucent guides in every channel instead (0.3) give Stage 2 0.0655 (wavy 0.144): direction
+    and depth composited through several translucent layers mix those layers. Costs ~30% of a
+    Stage 2 step."""
     occlude_head: bool = True
     """Hide hair behind the head mesh (rendered once per keyframe)."""
     bins: int = 16
@@ -183,7 +187,8 @@ class Stage2Config:
     """Total optimisation steps (method.md: ~800 on a GPU; 600 here for the CPU budget: 300 instead
     gave mean Chamfer_pts 0.103 against 0.096 on the quality benchmark's six sequences, seed 0,
     through 200,000-point subsets; with exact scores 1000 steps give 0.0623 / 0.2398 rad against
-    0.0642 / 0.2384 at 1.7x the time, ``benchmarks/stage2_sweep.py``, first draw, seed 0)."""
+    0.0642 / 0.2384 at 1.7x the time, ``benchmarks/stage2_sweep.py``, first draw, seed 0, with an
+    opaque silhouette)."""
     canonical_steps: int = 300
     """Steps with the canonical hair only, before the deformation MLP is switched on (method.md: 300)."""
     ramp_steps: int = 100
