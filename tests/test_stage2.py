@@ -306,3 +306,5 @@ def test_silhouette_opacity_thins_only_the_silhouette(toy):
         assert torch.equal(getattr(thin, name), getattr(opaque, name)), name
     (g,) = torch.autograd.grad(thin.silhouette.sum(), pts)
     assert float(g.abs().sum()) > 0.0
+    with pytest.raises(ValueError, match="silhouette_opacity"):
+        render_frames(pts, toy.data, frames, apply_overrides(model.cfg.render, {"silhouette_opacity": 0.0}))

@@ -79,9 +79,15 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     Args:
         points: (B,N,P,3) strands in the canonical head frame, one set per rendered keyframe.
         data: the sequence; frames: (B,) int64 keyframe positions into ``data``.
-        settings: strand width, depth bins.
+        settings: strand width, depth bins, the silhouette's opacity (below 1 the silhouette comes
+            from a second, silhouette-only render at that opacity).
         shading: False renders the silhouette only.
+
+    Raises:
+        ValueError when ``settings.silhouette_opacity`` is not in (0, 1].
     """
+    if not 0.0 < settings.silhouette_opacity <= 1.0:
+        raise ValueError(f"render.silhouette_opacity must be in (0, 1], got {settings.silhouette_opacity}")
     fr = frames.to(data.K.device)
     head_depth = data.head_depth[fr] if data.head_depth is not None else None
 
