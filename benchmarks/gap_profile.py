@@ -57,16 +57,15 @@ def tip_rows(tips: np.ndarray, camera, world_from_head: np.ndarray, mask: np.nda
     return float(ok.mean()), float(mask[v[ok], u[ok]].mean()), float(np.median(v[ok]))
 
 
-def length_errors(gt_points: np.ndarray, gt_uv: np.ndarray, points: np.ndarray, uv: np.ndarray) -> list[float]:
-    """Mean length (cm) of strands (S,P,3) minus that of the ground-truth strand (G,Q,3) with the
-    nearest root uv, per root head region (:data:`REGIONS` order; NaN where none is rooted)."""
+def length_errors(gt, pred) -> list[float]:
+    """Mean length (cm) of the ``pred`` strands minus that of the ``gt`` strand with the nearest root
+    uv (both StrandSets with a ``uv`` attribute), per root head region (:data:`REGIONS` order; NaN
+    where none is rooted)."""
     from vid2haircut.evaluate.metrics import REGIONS, region_of
 
-    def length(p: np.ndarray) -> np.ndarray:
-        return np.linalg.norm(np.diff(p, axis=1), axis=2).sum(1)
-
-    d = (length(points) - length(gt_points)[cKDTree(gt_uv).query(uv)[1]]) * 100.0
-    reg = region_of(points[:, 0])
+    match = cKDTree(gt.attributes["uv"]).query(pred.attributes["uv"])[1]
+    d = (pred.lengths() - gt.lengths()[match]) * 100.0
+    reg = region_of(pred.points[:, 0])
     return [float(d[reg == i].mean()) if np.any(reg == i) else float("nan") for i in range(len(REGIONS))]
 
 
@@ -102,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
             inside, on_mask, row = tip_rows(pts[N_POINTS - 1::N_POINTS], cam, pose, mask)
             tips.append(f"{name} | {v} | {inside:.2f} | {on_mask:.2f} | {row:.0f}")
             if pred is not None:
-                err = length_errors(gt_set.points, gt_set.attributes["uv"], pred.points, pred.attributes["uv"])
+                err = length_errors(gt_set, pred)
                 lengths.append(f"{name} | {v} | {' / '.join(f'{x:+.1f}' for x in err)}")
                 total, by_sdf, by_arc = profile(gt, sdf, pts)
                 gaps.append(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "

@@ -144,6 +144,8 @@ def test_gap_profile_parts_add_up_and_find_the_tips():
 
 
 def test_gap_profile_length_errors_match_strands_by_uv_and_region():
+    from vid2haircut.strands import StrandSet
+
     gap = _bench("gap_profile")
     t = np.linspace(0.0, 1.0, 10)[:, None]
     down = np.array([0.0, -1.0, 0.0])
@@ -156,7 +158,7 @@ def test_gap_profile_length_errors_match_strands_by_uv_and_region():
     gt_uv = np.array([[0.5, 0.2], [0.5, 0.8]])
     pred = np.stack([strand([0.0, 0.1, -0.1], 0.25), strand([0.0, 0.1, 0.1], 0.26)])   # listed back first
     pred_uv = np.array([[0.5, 0.79], [0.5, 0.21]])
-    front, side, back = gap.length_errors(gt, gt_uv, pred, pred_uv)
+    front, side, back = gap.length_errors(StrandSet(gt, {"uv": gt_uv}), StrandSet(pred, {"uv": pred_uv}))
     assert np.isclose(front, -4.0) and np.isclose(back, 5.0) and np.isnan(side)
 
 
