@@ -13,7 +13,7 @@ from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intr
 from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
                                     robust, silhouette_loss, smoothness_losses, texel_graph,
                                     tip_height_loss)
-from vid2haircut.fit.trainer import History, weighted_total
+from vid2haircut.fit.trainer import History, lr_decay_factor, weighted_total
 from vid2haircut.fit.visibility import VisibilityGate, point_visibility
 
 
@@ -328,3 +328,14 @@ def test_bend_loss_counts_only_bends_tighter_than_the_radius():
     s = straight.clone().requires_grad_(True)
     bend_loss(s, 0.003).backward()
     assert torch.isfinite(s.grad).all() and float(s.grad.abs().max()) == 0.0
+
+
+def test_lr_decay_factor_is_a_half_cosine_over_the_last_steps():
+    f = [lr_decay_factor(s, 10, 4, 0.1) for s in range(10)]
+    assert f[:6] == [1.0] * 6                          # constant until the last 4 steps
+    assert f[-1] == pytest.approx(0.1)                 # the final factor at the last step
+    assert all(a > b for a, b in zip(f[5:], f[6:]))    # then strictly falling
+    assert f[7] == pytest.approx(0.1 + 0.9 * 0.5)      # half-way through the cosine: the midpoint
+    assert all(lr_decay_factor(s, 10, 0, 0.1) == 1.0 for s in range(10))
+    with pytest.raises(ValueError, match="final factor"):
+        lr_decay_factor(9, 10, 4, 0.0)

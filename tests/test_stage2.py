@@ -247,6 +247,25 @@ def test_same_seed_same_output_and_resume(toy):
     assert not torch.equal(other.extra["deform"].frame_codes.weight, a.extra["deform"].frame_codes.weight)
 
 
+def test_lr_decay_follows_the_step_and_survives_resume(toy):
+    z0, m0 = _start(toy)
+    cfg = _cfg(lr_decay_steps=6, lr_final=0.2)
+    states, lrs = {}, []
+
+    def keep(step, model, trainer):
+        lrs.append([g["lr"] for opt in trainer.optimizers for g in opt.param_groups])
+        if step == 4:
+            states["ck"] = copy.deepcopy(checkpoint_state(step, model, trainer))
+
+    a = fit_stage2(toy.data, toy.codec, cfg, z0, m0, progress=False, on_step=keep)
+    assert lrs[0][0] == pytest.approx(cfg.lr_z) and lrs[-1][0] == pytest.approx(0.2 * cfg.lr_z)
+    assert lrs[-1][1] == pytest.approx(0.2 * cfg.lr_mlp)                  # every group decays
+    c = fit_stage2(toy.data, toy.codec, cfg, z0, m0, progress=False, resume=states["ck"])
+    assert torch.allclose(a.z, c.z, atol=1e-6)
+    plain = fit_stage2(toy.data, toy.codec, _cfg(), z0, m0, progress=False)
+    assert not torch.allclose(a.z, plain.z, atol=1e-5)
+
+
 def _stage2_parser() -> argparse.ArgumentParser:
     from vid2haircut.cli import stage2
 

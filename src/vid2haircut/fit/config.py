@@ -199,6 +199,11 @@ class Stage2Config:
     """Keyframes rendered per step (0 = all; fewer = a deterministic rotating subset)."""
     lr_z: float = 0.02
     """Learning rate of the hair map Z (whitened units, for the first component)."""
+    lr_decay_steps: int = 0
+    """Over the last this many steps every learning rate falls along a half cosine to ``lr_final``
+    times its value (:func:`vid2haircut.fit.trainer.lr_decay_factor`; 0 = constant)."""
+    lr_final: float = 0.1
+    """Learning-rate factor at the last step when ``lr_decay_steps`` > 0."""
     lr_gain_power: float = 0.5
     """Per-component step size (s_k / s_0) ** power of Z (see :class:`vid2haircut.fit.scene.ZMap`)."""
     z_optimizer: str = "shared_adam"

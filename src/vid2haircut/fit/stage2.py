@@ -31,7 +31,7 @@ from vid2haircut.fit.losses import (anchor_loss, bend_loss, motion_loss, pca_con
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
-from vid2haircut.fit.trainer import History, Trainer
+from vid2haircut.fit.trainer import History, Trainer, lr_decay_factor
 from vid2haircut.fit.visibility import (VisibilityGate, check_visibility_unit, gate_visibility, point_visibility,
                                         texel_visible_fraction)
 from vid2haircut.prior.codec import StrandCodec
@@ -279,7 +279,8 @@ def fit_stage2(data: FitData, codec: StrandCodec, cfg: Stage2Config, z_init: Ten
             opt.load_state_dict(st)
         history, start = History.from_dict(resume["history"]), int(resume["step"]) + 1
         log.info("stage2: resuming after step %d", start - 1)
-    trainer = Trainer(model, optimizers, cfg.weights, history)
+    trainer = Trainer(model, optimizers, cfg.weights, history,
+                      lr_factor=lambda s: lr_decay_factor(s, cfg.iterations, cfg.lr_decay_steps, cfg.lr_final))
     t0 = time.perf_counter()
     trainer.run(start, cfg.iterations, desc="stage2", progress=progress,
                 on_step=None if on_step is None else (lambda s: on_step(s, model, trainer)))

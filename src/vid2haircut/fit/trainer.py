@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable
@@ -21,7 +22,7 @@ from torch import Tensor
 
 from vid2haircut.fit.config import LossWeights
 
-__all__ = ["History", "weighted_total", "Trainer"]
+__all__ = ["History", "weighted_total", "lr_decay_factor", "Trainer"]
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +79,23 @@ def weighted_total(losses: dict[str, Tensor], weights: LossWeights) -> Tensor:
     return total
 
 
+def lr_decay_factor(step: int, total: int, decay_steps: int, final: float) -> float:
+    """Learning-rate factor at ``step`` of ``total``: 1, then over the last ``decay_steps`` steps a
+    half cosine down to ``final`` at the last step (``decay_steps`` <= 0: always 1).
+
+    A function of the step alone, so a resumed run follows the same schedule.
+    """
+    if decay_steps <= 0 or total <= 0:
+        return 1.0
+    if not 0.0 < final <= 1.0:
+        raise ValueError(f"learning-rate decay: the final factor must be in (0, 1], got {final}")
+    start = total - decay_steps
+    if step < start:
+        return 1.0
+    t = min(1.0, (step - start + 1) / decay_steps)
+    return final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * t))
+
+
 class Trainer:
     """Runs optimisation steps of a model.
 
@@ -86,19 +104,26 @@ class Trainer:
         optimizers: optimisers over the model's parameter groups.
         weights: loss weights.
         history: history to continue (resume).
+        lr_factor: optional ``step -> factor`` on every group's starting learning rate
+            (e.g. :func:`lr_decay_factor`); the starting rate is kept in the group as ``base_lr``.
     """
 
     def __init__(self, model: Any, optimizers: list[torch.optim.Optimizer], weights: LossWeights,
-                 history: History | None = None) -> None:
+                 history: History | None = None, lr_factor: Callable[[int], float] | None = None) -> None:
         self.model = model
         self.optimizers = optimizers
         self.weights = weights
         self.history = history or History()
+        self.lr_factor = lr_factor
 
     def step(self, step: int) -> dict[str, float]:
         """One optimisation step -> the unweighted terms (floats)."""
         for opt in self.optimizers:
             opt.zero_grad(set_to_none=True)
+            if self.lr_factor is not None:
+                f = float(self.lr_factor(step))
+                for g in opt.param_groups:
+                    g["lr"] = g.setdefault("base_lr", g["lr"]) * f
         losses = self.model.get_loss_dict(step)
         total = weighted_total(losses, self.weights)
         if not torch.isfinite(total):
