@@ -279,8 +279,9 @@ def fit_stage2(data: FitData, codec: StrandCodec, cfg: Stage2Config, z_init: Ten
             opt.load_state_dict(st)
         history, start = History.from_dict(resume["history"]), int(resume["step"]) + 1
         log.info("stage2: resuming after step %d", start - 1)
-    trainer = Trainer(model, optimizers, cfg.weights, history,
-                      lr_factor=lambda s: lr_decay_factor(s, cfg.iterations, cfg.lr_decay_steps, cfg.lr_final))
+    decay = None if cfg.lr_decay_steps <= 0 else (
+        lambda s: lr_decay_factor(s, cfg.iterations, cfg.lr_decay_steps, cfg.lr_final))
+    trainer = Trainer(model, optimizers, cfg.weights, history, lr_factor=decay)
     t0 = time.perf_counter()
     trainer.run(start, cfg.iterations, desc="stage2", progress=progress,
                 on_step=None if on_step is None else (lambda s: on_step(s, model, trainer)))
