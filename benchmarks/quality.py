@@ -143,6 +143,7 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
 
 def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
     """Dense strands of the prior's prediction on the reference keyframe (cached)."""
+    from vid2haircut.fit.config import Stage1Config
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import dense_strands
     from vid2haircut.fit.stage1 import initial_hairmap, prior_view_input
@@ -155,7 +156,8 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
                              n_keyframes=1, occlude_head=False)
         net, codec, _ = load_prior(prior_dir)
         z, mask = initial_hairmap(data, codec, (net, prior_view_input(data, net.cfg.input_size, "cpu")))
-        save_strands(path, dense_strands(z, mask, data.head, codec, 10000, 0, data.head_model))
+        save_strands(path, dense_strands(z, mask, data.head, codec, 10000, 0, data.head_model,
+                                         length_spread=Stage1Config().length_spread))
     return path
 
 
@@ -164,6 +166,7 @@ def oracle_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
     codec coefficients of its nearest ground-truth strand, decoded like every fit's output. The
     hair map and codec are written next to them (``hairmap.npz``, ``codec.npz``), so Stage 2 can
     start from them like from a Stage 1 folder."""
+    from vid2haircut.fit.config import Stage1Config
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import dense_strands, write_hairmap
     from vid2haircut.io.strand_formats import load_strands, save_strands
@@ -176,7 +179,8 @@ def oracle_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
                              n_keyframes=1, occlude_head=False)
         _, codec, _ = load_prior(prior_dir)
         hm = encode_strands(load_strands(seq["gt"]), data.head, codec, res=32)
-        save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model))
+        save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model,
+                                         length_spread=Stage1Config().length_spread))
         write_hairmap(out / "hairmap.npz", hm.z, hm.mask, codec.fingerprint(), data.head_model)
         codec.save(out / "codec.npz")
     return path

@@ -83,8 +83,9 @@ def decoded(work: Path, name: str, setting: str) -> Path:
                              occlude_head=False)
         z, mask, _ = load_hairmap(out / "hairmap.npz")
         codec = StrandCodec.load(work / "runs" / name / "stage1" / "codec.npz")
-        seed = int(json.loads((out / "stage2.json").read_text())["config"]["seed"])
-        save_strands(path, dense_strands(z, mask, data.head, codec, 10000, seed, data.head_model))
+        cfg = json.loads((out / "stage2.json").read_text())["config"]
+        save_strands(path, dense_strands(z, mask, data.head, codec, 10000, int(cfg["seed"]), data.head_model,
+                                         length_spread=float(cfg.get("length_spread", 0.0))))
     return path
 
 

@@ -103,6 +103,24 @@ def test_files_cli_outputs_and_determinism(toy, tmp_path):
     assert record["config"]["seed"] == 3 and len(record["history"]["total"]) == 5
 
 
+def test_dense_strands_get_uneven_ends_outside_the_head(toy):
+    from vid2haircut.fit.outputs import dense_strands
+
+    head = toy.data.head
+    even = dense_strands(toy.z_gt, toy.mask, head, toy.codec, 2000, 0, "proxy-v1")
+    uneven = dense_strands(toy.z_gt, toy.mask, head, toy.codec, 2000, 0, "proxy-v1", length_spread=0.04)
+    np.testing.assert_array_equal(uneven.points[:, 0], even.points[:, 0])      # same roots
+    np.testing.assert_array_equal(uneven.attributes["uv"], even.attributes["uv"])
+    rel = uneven.lengths() / np.maximum(even.lengths(), 1e-9) - 1.0
+    long_enough = even.lengths() > 0.02
+    # median |relative change| of a normal spread of 0.04 is 0.027 (push-out may add to a few)
+    assert 0.02 < float(np.median(np.abs(rel[long_enough]))) < 0.035
+    assert (rel[long_enough] > 0.02).any() and (rel[long_enough] < -0.02).any()
+    assert float(head.sdf_np(uneven.points[:, 1:].reshape(-1, 3)).min()) > 0.0   # pushed out again
+    again = dense_strands(toy.z_gt, toy.mask, head, toy.codec, 2000, 0, "proxy-v1", length_spread=0.04)
+    np.testing.assert_array_equal(again.points, uneven.points)
+
+
 def test_missing_inputs_are_named(toy, tmp_path):
     from vid2haircut.fit.pipeline import run_stage1
 

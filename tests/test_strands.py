@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from vid2haircut.strands import StrandSet, polyline_tangents, resample_polyline_list, resample_polylines
+from vid2haircut.strands import (StrandSet, polyline_tangents, resample_polyline_list, resample_polylines,
+                                 vary_lengths)
 
 
 def _arcs(n_strands=3, p=40):
@@ -117,3 +118,49 @@ def test_resample_vectorised_matches_per_strand():
     seg = np.linalg.norm(np.diff(all_at_once, axis=1), axis=-1)
     total = np.linalg.norm(np.diff(pts, axis=1), axis=-1).sum(1)
     assert np.all(seg.sum(1) <= total + 1e-9)
+
+
+def test_vary_lengths_scales_each_strand_and_keeps_its_path():
+    # 4000 straight strands along -y, 0.3 m: each new length is 0.3 * (1 + 0.04 g), the points
+    # stay on the line (cut) or on its straight continuation (extended), uniform by arc length
+    n, p = 4000, 30
+    pts = np.zeros((n, p, 3), np.float32)
+    pts[..., 1] = -np.linspace(0.0, 0.3, p)[None]
+    pts[:, :, 0] = np.arange(n)[:, None] * 1e-3
+    out = vary_lengths(pts, 0.04, seed=3)
+    assert out.shape == pts.shape and out.dtype == np.float32
+    np.testing.assert_array_equal(out[:, 0], pts[:, 0])
+    np.testing.assert_allclose(out[..., 0], pts[..., 0], atol=1e-7)     # no sideways drift
+    lengths = -out[:, -1, 1]
+    rel = lengths / 0.3 - 1.0
+    assert abs(rel.mean()) < 0.004 and 0.036 < rel.std() < 0.044
+    assert np.abs(rel).max() <= 3 * 0.04 + 1e-6                        # draws clipped at 3 sigma
+    assert (rel < -0.01).any() and (rel > 0.01).any()                  # cut and extended strands
+    step = np.diff(out[..., 1], axis=1)
+    np.testing.assert_allclose(step, np.broadcast_to((-lengths / (p - 1))[:, None], step.shape), atol=2e-6)
+    # deterministic in the seed, another seed draws other lengths, 0 is the identity
+    np.testing.assert_array_equal(vary_lengths(pts, 0.04, seed=3), out)
+    assert not np.allclose(vary_lengths(pts, 0.04, seed=4), out)
+    np.testing.assert_array_equal(vary_lengths(pts, 0.0), pts)
+
+
+def test_vary_lengths_extends_a_curved_strand_along_its_tip():
+    pts, true_len = _arcs(n_strands=1, p=200)
+    many = np.repeat(pts, 500, 0)
+    out = vary_lengths(many, 0.05, seed=0)
+    lengths = np.linalg.norm(np.diff(out.astype(np.float64), axis=1), axis=-1).sum(1)
+    longer = lengths > true_len[0] * 1.02
+    assert longer.any()
+    # the extension continues along the arc's tip direction (-y at the end of the half circle)
+    tip = out[longer][:, -1]
+    assert np.all(tip[:, 1] < -1e-3) and np.allclose(tip[:, 0], -0.1, atol=2e-3)
+    # a cut strand ends on the circle
+    shorter = lengths < true_len[0] * 0.98
+    np.testing.assert_allclose(np.linalg.norm(out[shorter][:, -1, :2], axis=-1), 0.1, atol=1e-4)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 0.5, float("nan")])
+def test_vary_lengths_rejects_a_bad_spread(bad):
+    pts, _ = _arcs()
+    with pytest.raises(ValueError, match="rel_std"):
+        vary_lengths(pts, bad)

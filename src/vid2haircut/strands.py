@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents"]
+__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "vary_lengths"]
 
 
 def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
@@ -54,21 +54,80 @@ def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
     u = np.where(degenerate[:, None], np.linspace(0.0, 1.0, p)[None, :],
                  cum / np.where(degenerate, 1.0, total)[:, None])
     t = np.linspace(0.0, 1.0, n_points)                                  # (n_points,)
-    # one global searchsorted: shift row i by 2*i so that rows do not interleave
-    offs = 2.0 * np.arange(n, dtype=np.float64)
-    flat_u = (u + offs[:, None]).ravel()
-    flat_t = (t[None, :] + offs[:, None]).ravel()
-    idx = np.searchsorted(flat_u, flat_t, side="right").reshape(n, n_points) - np.arange(n)[:, None] * p
-    j = np.clip(idx - 1, 0, p - 2)                                       # segment index (N,n_points)
-    rows = np.arange(n)[:, None]
-    u0, u1 = u[rows, j], u[rows, j + 1]
-    du = u1 - u0
-    frac = np.clip(np.divide(t[None, :] - u0, du, out=np.zeros_like(du), where=du > 0), 0.0, 1.0)
-    res = x[rows, j] + frac[..., None] * (x[rows, j + 1] - x[rows, j])
+    res = _points_at_arclength(x, u, np.broadcast_to(t, (n, n_points)))
     res[degenerate] = x[degenerate, :1]
     out = res.astype(out_dtype)
     out[:, 0] = pts[:, 0]
     out[:, -1] = pts[:, -1]
+    return out
+
+
+def _points_at_arclength(x: np.ndarray, cum: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Points of polylines at given arc-length parameters (linear interpolation, vectorised).
+
+    Args:
+        x: (N,Q,3) float64 polylines.
+        cum: (N,Q) non-decreasing arc-length parameter of each vertex (repeats allowed).
+        s: (N,M) parameters to sample, each row within its row's [cum[:,0], cum[:,-1]].
+
+    Returns:
+        (N,M,3) float64 points.
+    """
+    n, q = cum.shape
+    # one global searchsorted: shift row i so that rows do not interleave
+    offs = (float(np.max(cum[:, -1] - cum[:, 0], initial=0.0)) + 1.0) * np.arange(n, dtype=np.float64)
+    flat_c = (cum - cum[:, :1] + offs[:, None]).ravel()
+    flat_s = (s - cum[:, :1] + offs[:, None]).ravel()
+    idx = np.searchsorted(flat_c, flat_s, side="right").reshape(s.shape) - np.arange(n)[:, None] * q
+    j = np.clip(idx - 1, 0, q - 2)                                       # segment index (N,M)
+    rows = np.arange(n)[:, None]
+    c0, c1 = cum[rows, j], cum[rows, j + 1]
+    dc = c1 - c0
+    frac = np.clip(np.divide(s - c0, dc, out=np.zeros_like(dc), where=dc > 0), 0.0, 1.0)
+    return x[rows, j] + frac[..., None] * (x[rows, j + 1] - x[rows, j])
+
+
+def vary_lengths(points: np.ndarray, rel_std: float, seed: int = 0) -> np.ndarray:
+    """Give each strand its own length: real hair ends are uneven, a strand decoded from a few
+    guides is not.
+
+    Each strand's length is multiplied by ``f = 1 + rel_std * g`` (g standard normal, clipped to
+    +-3, one draw per strand from ``seed``). A shorter strand is cut at that arc length; a longer one
+    is continued straight along its tip direction (the mean of its last three segments). Either
+    way it is resampled to its P points uniformly by arc length, and the root is kept exactly.
+
+    Args:
+        points: (N,P,3) float strands, root first, P >= 2.
+        rel_std: relative standard deviation of the length (0 returns the input unchanged).
+        seed: seed of the per-strand draws.
+
+    Returns:
+        (N,P,3) array of the input's dtype.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] < 2:
+        raise ValueError(f"vary_lengths: points must be (N,P,3) with P >= 2, got {pts.shape}")
+    if not (np.isfinite(rel_std) and 0.0 <= rel_std < 1.0 / 3.0):
+        raise ValueError(f"vary_lengths: rel_std must be in [0, 1/3), got {rel_std}")
+    if rel_std == 0.0 or len(pts) == 0:
+        return pts.copy()
+    n, p = pts.shape[:2]
+    x = pts.astype(np.float64)
+    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)                    # (N,P-1)
+    cum = np.concatenate([np.zeros((n, 1)), np.cumsum(seg, axis=1)], axis=1)
+    length = cum[:, -1]
+    g = np.clip(np.random.default_rng([int(seed), 0x1E46]).standard_normal(n), -3.0, 3.0)
+    target = length * (1.0 + float(rel_std) * g)                         # (N,)
+    back = max(p - 4, 0)
+    tip_dir = x[:, -1] - x[:, back]
+    norm = np.linalg.norm(tip_dir, axis=-1, keepdims=True)
+    tip_dir = np.divide(tip_dir, norm, out=np.zeros_like(tip_dir), where=norm > 0)
+    extra = np.maximum(target - length, 0.0)
+    ext = np.concatenate([x, (x[:, -1] + tip_dir * extra[:, None])[:, None]], axis=1)   # (N,P+1,3)
+    ext_cum = np.concatenate([cum, (length + extra)[:, None]], axis=1)
+    out = _points_at_arclength(ext, ext_cum, target[:, None] * np.linspace(0.0, 1.0, p)[None, :])
+    out = out.astype(pts.dtype if np.issubdtype(pts.dtype, np.floating) else np.float64)
+    out[:, 0] = pts[:, 0]
     return out
 
 

@@ -173,6 +173,10 @@ class Stage1Config:
     """Guide rendering settings."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
+    length_spread: float = 0.04
+    """Relative spread of the dense strands' lengths (uneven ends, :func:`vid2haircut.strands.vary_lengths`):
+    the robust spread of strand length within one texel of the 32x32 map over the prior's training
+    corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
     device: str = "cpu"
     """Torch device."""
     seed: int = 0
@@ -271,6 +275,10 @@ class Stage2Config:
     """Texels whose baldness-mask value reaches this carry a guide strand."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
+    length_spread: float = 0.04
+    """Relative spread of the dense strands' lengths (uneven ends, :func:`vid2haircut.strands.vary_lengths`):
+    the robust spread of strand length within one texel of the 32x32 map over the prior's training
+    corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
     checkpoint_every: int = 50
     """Write a resumable checkpoint every this many steps (0 = only at the end)."""
     device: str = "cpu"

@@ -51,14 +51,15 @@ def stage2_config(settings: dict | None = None, device: str | None = None, seed:
     return cfg
 
 
-def _write_common(out_dir: Path, res: FitResult, data: FitData, codec: StrandCodec, n_dense: int, seed: int,
-                  weights, title: str) -> None:
-    dense = dense_strands(res.z, res.mask, data.head, codec, n_dense, seed, data.head_model)
+def _write_common(out_dir: Path, res: FitResult, data: FitData, codec: StrandCodec,
+                  cfg: Stage1Config | Stage2Config, title: str) -> None:
+    dense = dense_strands(res.z, res.mask, data.head, codec, cfg.n_dense, cfg.seed, data.head_model,
+                          length_spread=cfg.length_spread)
     write_strands(out_dir, res.guides, res.texel_index, dense, data.head_model)
     write_hairmap(out_dir / "hairmap.npz", res.z, res.mask, codec.fingerprint(), data.head_model)
     codec.save(out_dir / "codec.npz")
     write_renders(out_dir, res.render, data, res.frames)
-    write_loss_curve(out_dir / "loss_curve.png", res.history, weights, title)
+    write_loss_curve(out_dir / "loss_curve.png", res.history, cfg.weights, title)
 
 
 def _final_terms(res: FitResult) -> dict:
@@ -100,12 +101,13 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
         write_hairmap(out / "prior_hairmap.npz", z0, m0, codec.fingerprint(), data.head_model)
         # The prior's prediction alone (the "prior" row of the evaluation table).
         save_strands(out / "prior_strands.npz",
-                     dense_strands(z0, m0, data.head, codec.to("cpu"), cfg.n_dense, cfg.seed, data.head_model))
+                     dense_strands(z0, m0, data.head, codec.to("cpu"), cfg.n_dense, cfg.seed, data.head_model,
+                                   length_spread=cfg.length_spread))
     else:
         codec = StrandCodec.load(codec_path)
     res = fit_stage1(data, codec, cfg, prior, progress=progress)
     codec = codec.to("cpu")
-    _write_common(out, res, data, codec, cfg.n_dense, cfg.seed, cfg.weights, "stage 1")
+    _write_common(out, res, data, codec, cfg, "stage 1")
     record = {"stage": "stage1", "config": config_to_dict(cfg), "reference": data.frames[0],
               "fit_size": [data.width, data.height], "n_guides": int(res.texel_index.numel()),
               "prior": str(prior_dir) if prior_dir is not None else None,
@@ -171,7 +173,7 @@ def run_stage2(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
 
     res = fit_stage2(data, codec, cfg, z, mask, progress=progress, resume=state, on_step=on_step)
     codec = codec.to("cpu")
-    _write_common(out, res, data, codec, cfg.n_dense, cfg.seed, cfg.weights, "stage 2")
+    _write_common(out, res, data, codec, cfg, "stage 2")
     deform = res.extra["deform"]
     if deform is not None:
         save_torch(out / "deform.pt", {"state_dict": {k: v.cpu() for k, v in deform.state_dict().items()},

@@ -1,0 +1,96 @@
+"""Carry a ``benchmarks/quality.py`` work folder over to new dense-strand settings without refitting.
+
+The fits (hair maps) do not depend on how the dense strands are decoded from them, so a change of
+the decoding (for example ``length_spread``) needs no new fit. This makes a new work folder that
+links the old one's synthesised data and front-stage outputs, copies each run's hair map, codec and
+record (the record's ``config`` gets the new decoding settings), and decodes every run's dense
+strands again exactly as the stage does (:func:`vid2haircut.fit.outputs.dense_strands`, the run's
+seed). The prior and oracle rows are left out: ``quality.py`` remakes them with the present code.
+Then ``quality.py --work NEW ...`` with the old variants scores everything and prints the tables.
+
+    python benchmarks/redecode.py --src results/benchmarks/quality_v13 --dst results/benchmarks/quality_v14 \
+        --length-spread 0.04 [--jobs 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import quality  # noqa: E402  (the benchmark's sequence layout)
+
+RECORDS = ("stage1.json", "stage2.json")
+
+
+def redecode_sequence(job: tuple) -> list[str]:
+    """Re-decode every fitted run of one sequence into ``dst``; returns the run folders written."""
+    src, dst, name, spread = job
+    import torch
+
+    torch.set_num_threads(1)
+    from vid2haircut.fit.data import load_fit_data
+    from vid2haircut.fit.outputs import dense_strands, load_hairmap
+    from vid2haircut.io.atomic import write_json
+    from vid2haircut.io.strand_formats import save_strands
+    from vid2haircut.prior.codec import StrandCodec
+
+    seq = quality.seq_files(Path(src), name)
+    data = load_fit_data(seq["root"], name, seq["keyframes"], seq["head"], seq["targets"], n_keyframes=1,
+                         occlude_head=False)
+    done = []
+    for run in sorted((Path(src) / "runs" / name).iterdir()):
+        rec = next((run / r for r in RECORDS if (run / r).is_file()), None)
+        if rec is None or not (run / "hairmap.npz").is_file():
+            continue                                   # prior / oracle rows: remade by quality.py
+        out = Path(dst) / "runs" / name / run.name
+        if (out / "strands.npz").is_file():
+            done.append(str(out))
+            continue
+        out.mkdir(parents=True, exist_ok=True)
+        for f in ("hairmap.npz", "codec.npz"):
+            shutil.copy2(run / f, out / f)
+        record = json.loads(rec.read_text())
+        record["config"]["length_spread"] = spread
+        z, mask, _ = load_hairmap(run / "hairmap.npz")
+        codec = StrandCodec.load(run / "codec.npz")
+        n_dense = int(record["config"].get("n_dense", 10000))
+        save_strands(out / "strands.npz", dense_strands(z, mask, data.head, codec, n_dense,
+                                                        int(record["config"]["seed"]), data.head_model,
+                                                        length_spread=spread))
+        write_json(out / rec.name, record)             # last: quality.py treats the record as "run done"
+        done.append(str(out))
+    return done
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--src", required=True, help="existing quality.py work folder")
+    p.add_argument("--dst", required=True, help="new work folder (created)")
+    p.add_argument("--length-spread", type=float, required=True, help="relative spread of dense strand lengths")
+    p.add_argument("--sequences", default=None, help="comma-separated names (default: every sequence in --src)")
+    p.add_argument("--jobs", type=int, default=1)
+    args = p.parse_args(argv)
+    src, dst = Path(args.src).resolve(), Path(args.dst)
+    if not (src / "runs").is_dir():
+        raise SystemExit(f"{src}: not a quality.py work folder (no runs/)")
+    names = args.sequences.split(",") if args.sequences else sorted(d.name for d in (src / "runs").iterdir())
+    dst.mkdir(parents=True, exist_ok=True)
+    for sub in ("data", "front"):
+        link = dst / sub
+        if not link.exists():
+            os.symlink(os.path.realpath(src / sub), link)
+    jobs = [(str(src), str(dst), n, float(args.length_spread)) for n in names]
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
+        for n, done in zip(names, ex.map(redecode_sequence, jobs)):
+            print(f"{n}: {len(done)} runs decoded", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
