@@ -9,7 +9,7 @@ seed). The prior and oracle rows are left out: ``quality.py`` remakes them with 
 Then ``quality.py --work NEW ...`` with the old variants scores everything and prints the tables.
 
     python benchmarks/redecode.py --src results/benchmarks/quality_v13 --dst results/benchmarks/quality_v14 \
-        --length-spread 0.04 [--jobs 2]
+        --length-spread 0.04 [--runs stage1,stage2] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ RECORDS = ("stage1.json", "stage2.json")
 
 def redecode_sequence(job: tuple) -> list[str]:
     """Re-decode every fitted run of one sequence into ``dst``; returns the run folders written."""
-    src, dst, name, spread = job
+    src, dst, name, spread, only = job
     import torch
 
     torch.set_num_threads(1)
@@ -45,6 +45,8 @@ def redecode_sequence(job: tuple) -> list[str]:
                          occlude_head=False)
     done = []
     for run in sorted((Path(src) / "runs" / name).iterdir()):
+        if only and run.name not in only:
+            continue
         rec = next((run / r for r in RECORDS if (run / r).is_file()), None)
         if rec is None or not (run / "hairmap.npz").is_file():
             continue                                   # prior / oracle rows: remade by quality.py
@@ -74,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dst", required=True, help="new work folder (created)")
     p.add_argument("--length-spread", type=float, required=True, help="relative spread of dense strand lengths")
     p.add_argument("--sequences", default=None, help="comma-separated names (default: every sequence in --src)")
+    p.add_argument("--runs", default=None, help="comma-separated run (variant) names (default: every fitted run)")
     p.add_argument("--jobs", type=int, default=1)
     args = p.parse_args(argv)
     src, dst = Path(args.src).resolve(), Path(args.dst)
@@ -85,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
         link = dst / sub
         if not link.exists():
             os.symlink(os.path.realpath(src / sub), link)
-    jobs = [(str(src), str(dst), n, float(args.length_spread)) for n in names]
+    only = tuple(args.runs.split(",")) if args.runs else ()
+    jobs = [(str(src), str(dst), n, float(args.length_spread), only) for n in names]
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
         for n, done in zip(names, ex.map(redecode_sequence, jobs)):
             print(f"{n}: {len(done)} runs decoded", flush=True)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.fit.config import LossWeights, Stage2Config, apply_overrides, load_settings
+from vid2haircut.fit.config import LossWeights, Stage1Config, Stage2Config, apply_overrides, load_settings
 from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
 from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
                                     robust, silhouette_loss, smoothness_losses, texel_graph,
@@ -218,6 +218,9 @@ def test_overrides_nested_dotted_and_errors(tmp_path):
         apply_overrides(Stage2Config(), {"switches.use_visibility": 1})
     with pytest.raises(ValueError, match="integer"):
         apply_overrides(Stage2Config(), {"iterations": 2.5})
+    with pytest.raises(ValueError, match=r"'length_spread' must be in \[0, 0.333333\)"):
+        apply_overrides(Stage1Config(), {"length_spread": -0.01})
+    assert apply_overrides(Stage2Config(), {"length_spread": 0}).length_spread == 0.0
     p = tmp_path / "s.json"
     p.write_text('{"iterations": 3}')
     assert load_settings(str(p)) == {"iterations": 3} and load_settings('{"a": 1}') == {"a": 1}

@@ -13,6 +13,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -287,6 +288,11 @@ class Stage2Config:
     """Seed of everything random."""
 
 
+# Settings whose value must lie in [low, high): checked when overrides are applied, so a bad value
+# stops a run before it fits rather than when it writes its output.
+_RANGES = {"length_spread": (0.0, 1.0 / 3.0)}
+
+
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
     name = path[0]
     if not dataclasses.is_dataclass(obj) or name not in {f.name for f in dataclasses.fields(obj)}:
@@ -309,6 +315,9 @@ def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
             if isinstance(cur, int) and not float(value).is_integer():
                 raise ValueError(f"settings: {full!r} must be an integer, got {value!r}")
             value = type(cur)(value)
+            low, high = _RANGES.get(name, (-math.inf, math.inf))
+            if not low <= value < high:
+                raise ValueError(f"settings: {full!r} must be in [{low:g}, {high:g}), got {value!r}")
         setattr(obj, name, value)
 
 
