@@ -141,9 +141,9 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
     return seq
 
 
-def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
-    """Dense strands of the prior's prediction on the reference keyframe (cached)."""
-    from vid2haircut.fit.config import Stage1Config
+def prior_strands(seq: dict, prior_dir: Path, out: Path, length_spread: float) -> Path:
+    """Dense strands of the prior's prediction on the reference keyframe (cached), decoded with
+    Stage 1's ``length_spread``."""
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import dense_strands
     from vid2haircut.fit.stage1 import initial_hairmap, prior_view_input
@@ -157,16 +157,15 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
         net, codec, _ = load_prior(prior_dir)
         z, mask = initial_hairmap(data, codec, (net, prior_view_input(data, net.cfg.input_size, "cpu")))
         save_strands(path, dense_strands(z, mask, data.head, codec, 10000, 0, data.head_model,
-                                         length_spread=Stage1Config().length_spread))
+                                         length_spread=length_spread))
     return path
 
 
-def oracle_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
+def oracle_strands(seq: dict, prior_dir: Path, out: Path, length_spread: float) -> Path:
     """Dense strands of the ground truth encoded into the hair map (cached): each texel holds the
     codec coefficients of its nearest ground-truth strand, decoded like every fit's output. The
     hair map and codec are written next to them (``hairmap.npz``, ``codec.npz``), so Stage 2 can
-    start from them like from a Stage 1 folder."""
-    from vid2haircut.fit.config import Stage1Config
+    start from them like from a Stage 1 folder (decoded with Stage 1's ``length_spread``)."""
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import dense_strands, write_hairmap
     from vid2haircut.io.strand_formats import load_strands, save_strands
@@ -180,7 +179,7 @@ def oracle_strands(seq: dict, prior_dir: Path, out: Path) -> Path:
         _, codec, _ = load_prior(prior_dir)
         hm = encode_strands(load_strands(seq["gt"]), data.head, codec, res=32)
         save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model,
-                                         length_spread=Stage1Config().length_spread))
+                                         length_spread=length_spread))
         write_hairmap(out / "hairmap.npz", hm.z, hm.mask, codec.fingerprint(), data.head_model)
         codec.save(out / "codec.npz")
     return path
@@ -190,14 +189,13 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
                 seed: int = 0) -> tuple[Path, float]:
     """Run one variant (cached) -> (strands.npz, fit seconds); Stage 2 variants with ``seed`` != 0
     run under ``<variant>_seed<seed>`` with ``Stage2Config.seed`` set (same Stage 1 start)."""
-    from vid2haircut.fit.pipeline import run_stage1, run_stage2
+    from vid2haircut.fit.pipeline import run_stage1, run_stage2, stage1_config
 
     out = work / "runs" / seq["subject"] / (name if seed == 0 else f"{name}_seed{seed}")
     common = (seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"])
-    if name == "prior":
-        return prior_strands(seq, prior_dir, out), 0.0
-    if name == "oracle":
-        return oracle_strands(seq, prior_dir, out), 0.0
+    if name in ("prior", "oracle"):
+        spread = stage1_config(settings.get("stage1", {})).length_spread
+        return (prior_strands if name == "prior" else oracle_strands)(seq, prior_dir, out, spread), 0.0
     rec = out / ("stage1.json" if name in STAGE1_VARIANTS else "stage2.json")
     if not rec.is_file():
         if name in STAGE1_VARIANTS:

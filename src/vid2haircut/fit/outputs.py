@@ -127,7 +127,7 @@ def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_
     if length_spread > 0:
         from vid2haircut.strands import vary_lengths
 
-        pts = torch.as_tensor(vary_lengths(pts.cpu().numpy(), length_spread, seed))
+        pts = torch.as_tensor(vary_lengths(pts.cpu().numpy(), length_spread, seed), device=pts.device)
         pts = pts if collision_margin is None else push_out_of_head(pts, head, collision_margin)
     return StrandSet(pts.cpu().numpy(), {"uv": d.uv.cpu().numpy()}, head_model=head_model)
 
