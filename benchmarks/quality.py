@@ -141,9 +141,9 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
     return seq
 
 
-def prior_strands(seq: dict, prior_dir: Path, out: Path, length_spread: float) -> Path:
+def prior_strands(seq: dict, prior_dir: Path, out: Path, decoding: dict) -> Path:
     """Dense strands of the prior's prediction on the reference keyframe (cached), decoded with
-    Stage 1's ``length_spread``."""
+    Stage 1's ``length_spread`` and ``tip_scatter`` (``decoding``)."""
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import dense_strands
     from vid2haircut.fit.stage1 import initial_hairmap, prior_view_input
@@ -157,15 +157,15 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path, length_spread: float) -
         net, codec, _ = load_prior(prior_dir)
         z, mask = initial_hairmap(data, codec, (net, prior_view_input(data, net.cfg.input_size, "cpu")))
         save_strands(path, dense_strands(z, mask, data.head, codec, 10000, 0, data.head_model,
-                                         length_spread=length_spread))
+                                         **decoding))
     return path
 
 
-def oracle_strands(seq: dict, prior_dir: Path, out: Path, length_spread: float) -> Path:
+def oracle_strands(seq: dict, prior_dir: Path, out: Path, decoding: dict) -> Path:
     """Dense strands of the ground truth encoded into the hair map (cached): each texel holds the
     codec coefficients of its nearest ground-truth strand, decoded like every fit's output. The
     hair map and codec are written next to them (``hairmap.npz``, ``codec.npz``), so Stage 2 can
-    start from them like from a Stage 1 folder (decoded with Stage 1's ``length_spread``)."""
+    start from them like from a Stage 1 folder (decoded with Stage 1's ``decoding`` settings)."""
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import dense_strands, write_hairmap
     from vid2haircut.io.strand_formats import load_strands, save_strands
@@ -179,7 +179,7 @@ def oracle_strands(seq: dict, prior_dir: Path, out: Path, length_spread: float) 
         _, codec, _ = load_prior(prior_dir)
         hm = encode_strands(load_strands(seq["gt"]), data.head, codec, res=32)
         save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model,
-                                         length_spread=length_spread))
+                                         **decoding))
         write_hairmap(out / "hairmap.npz", hm.z, hm.mask, codec.fingerprint(), data.head_model)
         codec.save(out / "codec.npz")
     return path
@@ -194,8 +194,9 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
     out = work / "runs" / seq["subject"] / (name if seed == 0 else f"{name}_seed{seed}")
     common = (seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"])
     if name in ("prior", "oracle"):
-        spread = stage1_config(settings.get("stage1", {})).length_spread
-        return (prior_strands if name == "prior" else oracle_strands)(seq, prior_dir, out, spread), 0.0
+        c1 = stage1_config(settings.get("stage1", {}))
+        decoding = {"length_spread": c1.length_spread, "tip_scatter": c1.tip_scatter}
+        return (prior_strands if name == "prior" else oracle_strands)(seq, prior_dir, out, decoding), 0.0
     rec = out / ("stage1.json" if name in STAGE1_VARIANTS else "stage2.json")
     if not rec.is_file():
         if name in STAGE1_VARIANTS:

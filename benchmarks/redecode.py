@@ -1,7 +1,7 @@
 """Carry a ``benchmarks/quality.py`` work folder over to new dense-strand settings without refitting.
 
 The fits (hair maps) do not depend on how the dense strands are decoded from them, so a change of
-the decoding (for example ``length_spread``) needs no new fit. This makes a new work folder that
+the decoding (``length_spread``, ``tip_scatter``) needs no new fit. This makes a new work folder that
 links the old one's synthesised data and front-stage outputs, copies each run's hair map, codec and
 record (the record's ``config`` gets the new decoding settings), and decodes every run's dense
 strands again exactly as the stage does (:func:`vid2haircut.fit.outputs.dense_strands`, the run's
@@ -9,7 +9,7 @@ seed). The prior and oracle rows are left out: ``quality.py`` remakes them with 
 Then ``quality.py --work NEW ...`` with the old variants scores everything and prints the tables.
 
     python benchmarks/redecode.py --src results/benchmarks/quality_v13 --dst results/benchmarks/quality_v14 \
-        --length-spread 0.04 [--runs stage1,stage2] [--jobs 2]
+        --length-spread 0.04 [--tip-scatter 0.002] [--runs stage1,stage2] [--jobs 2]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ RECORDS = ("stage1.json", "stage2.json")
 
 def redecode_sequence(job: tuple) -> list[str]:
     """Re-decode every fitted run of one sequence into ``dst``; returns the run folders written."""
-    src, dst, name, spread, only = job
+    src, dst, name, decoding, only = job
     import torch
 
     torch.set_num_threads(1)
@@ -58,13 +58,13 @@ def redecode_sequence(job: tuple) -> list[str]:
         for f in ("hairmap.npz", "codec.npz"):
             shutil.copy2(run / f, out / f)
         record = json.loads(rec.read_text())
-        record["config"]["length_spread"] = spread
+        record["config"].update(decoding)
         z, mask, _ = load_hairmap(run / "hairmap.npz")
         codec = StrandCodec.load(run / "codec.npz")
         n_dense = int(record["config"].get("n_dense", 10000))
         save_strands(out / "strands.npz", dense_strands(z, mask, data.head, codec, n_dense,
                                                         int(record["config"]["seed"]), data.head_model,
-                                                        length_spread=spread))
+                                                        **decoding))
         write_json(out / rec.name, record)             # last: quality.py treats the record as "run done"
         done.append(str(out))
     return done
@@ -75,6 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--src", required=True, help="existing quality.py work folder")
     p.add_argument("--dst", required=True, help="new work folder (created)")
     p.add_argument("--length-spread", type=float, required=True, help="relative spread of dense strand lengths")
+    p.add_argument("--tip-scatter", type=float, default=0.0, help="per-axis spread of the strand tips, metres")
     p.add_argument("--sequences", default=None, help="comma-separated names (default: every sequence in --src)")
     p.add_argument("--runs", default=None, help="comma-separated run (variant) names (default: every fitted run)")
     p.add_argument("--jobs", type=int, default=1)
@@ -89,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
         if not link.exists():
             os.symlink(os.path.realpath(src / sub), link)
     only = tuple(args.runs.split(",")) if args.runs else ()
-    jobs = [(str(src), str(dst), n, float(args.length_spread), only) for n in names]
+    decoding = {"length_spread": float(args.length_spread), "tip_scatter": float(args.tip_scatter)}
+    jobs = [(str(src), str(dst), n, decoding, only) for n in names]
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as ex:
         for n, done in zip(names, ex.map(redecode_sequence, jobs)):
             print(f"{n}: {len(done)} runs decoded", flush=True)

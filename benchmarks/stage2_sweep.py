@@ -85,7 +85,8 @@ def decoded(work: Path, name: str, setting: str) -> Path:
         codec = StrandCodec.load(work / "runs" / name / "stage1" / "codec.npz")
         cfg = json.loads((out / "stage2.json").read_text())["config"]
         save_strands(path, dense_strands(z, mask, data.head, codec, 10000, int(cfg["seed"]), data.head_model,
-                                         length_spread=float(cfg.get("length_spread", 0.0))))
+                                         length_spread=float(cfg.get("length_spread", 0.0)),
+                                         tip_scatter=float(cfg.get("tip_scatter", 0.0))))
     return path
 
 

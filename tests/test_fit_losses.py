@@ -221,6 +221,8 @@ def test_overrides_nested_dotted_and_errors(tmp_path):
     with pytest.raises(ValueError, match=r"'length_spread' must be in \[0, 0.333333\)"):
         apply_overrides(Stage1Config(), {"length_spread": -0.01})
     assert apply_overrides(Stage2Config(), {"length_spread": 0}).length_spread == 0.0
+    with pytest.raises(ValueError, match="'tip_scatter' must be in"):
+        apply_overrides(Stage2Config(), {"tip_scatter": 0.1})
     p = tmp_path / "s.json"
     p.write_text('{"iterations": 3}')
     assert load_settings(str(p)) == {"iterations": 3} and load_settings('{"a": 1}') == {"a": 1}

@@ -103,7 +103,7 @@ def test_files_cli_outputs_and_determinism(toy, tmp_path):
     assert record["config"]["seed"] == 3 and len(record["history"]["total"]) == 5
 
 
-def test_dense_strands_get_uneven_ends_outside_the_head(toy):
+def test_dense_strands_get_uneven_ends_and_fan_out_outside_the_head(toy):
     from vid2haircut.fit.outputs import dense_strands
 
     head = toy.data.head
@@ -119,6 +119,11 @@ def test_dense_strands_get_uneven_ends_outside_the_head(toy):
     assert float(head.sdf_np(uneven.points[:, 1:].reshape(-1, 3)).min()) > 0.0   # pushed out again
     again = dense_strands(toy.z_gt, toy.mask, head, toy.codec, 2000, 0, "proxy-v1", length_spread=0.04)
     np.testing.assert_array_equal(again.points, uneven.points)
+    fanned = dense_strands(toy.z_gt, toy.mask, head, toy.codec, 2000, 0, "proxy-v1", tip_scatter=0.002)
+    np.testing.assert_array_equal(fanned.points[:, 0], even.points[:, 0])
+    moved = np.linalg.norm(fanned.points[:, -1] - even.points[:, -1], axis=-1)[long_enough]
+    assert 0.002 < float(np.median(moved)) < 0.004          # |3-D normal| of 2 mm per axis: median 3.1 mm
+    assert float(head.sdf_np(fanned.points[:, 1:].reshape(-1, 3)).min()) > 0.0
 
 
 def test_missing_inputs_are_named(toy, tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from vid2haircut.strands import (StrandSet, polyline_tangents, resample_polyline_list, resample_polylines,
-                                 vary_lengths)
+                                 scatter_strands, vary_lengths)
 
 
 def _arcs(n_strands=3, p=40):
@@ -164,3 +164,22 @@ def test_vary_lengths_rejects_a_bad_spread(bad):
     pts, _ = _arcs()
     with pytest.raises(ValueError, match="rel_std"):
         vary_lengths(pts, bad)
+
+
+def test_scatter_strands_fans_tips_out_and_keeps_roots():
+    n, p = 5000, 21
+    pts = np.zeros((n, p, 3), np.float32)
+    pts[..., 1] = -np.linspace(0.0, 0.2, p)[None]                     # straight, uniform: s/L = k/(p-1)
+    out = scatter_strands(pts, 0.002, seed=1)
+    assert out.shape == pts.shape and out.dtype == np.float32
+    np.testing.assert_array_equal(out[:, 0], pts[:, 0])
+    tip = (out[:, -1] - pts[:, -1]).astype(np.float64)
+    assert np.all(np.abs(tip.std(axis=0) / 0.002 - 1.0) < 0.05) and np.all(np.abs(tip.mean(axis=0)) < 1e-4)
+    # the displacement grows with the square root of the arc-length fraction, along one direction
+    k = np.arange(p) / (p - 1)
+    np.testing.assert_allclose(out - pts, np.sqrt(k)[None, :, None] * tip[:, None, :].astype(np.float32), atol=1e-7)
+    np.testing.assert_array_equal(scatter_strands(pts, 0.002, seed=1), out)
+    assert not np.allclose(scatter_strands(pts, 0.002, seed=2), out)
+    np.testing.assert_array_equal(scatter_strands(pts, 0.0), pts)
+    with pytest.raises(ValueError, match="tip_std"):
+        scatter_strands(pts, -0.001)

@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "vary_lengths"]
+__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "scatter_strands", "vary_lengths"]
 
 
 def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
@@ -130,6 +130,35 @@ def vary_lengths(points: np.ndarray, rel_std: float, seed: int = 0) -> np.ndarra
     out[:, 0] = pts[:, 0]
     return out
 
+
+def scatter_strands(points: np.ndarray, tip_std: float, seed: int = 0) -> np.ndarray:
+    """Let strands fan out around their path: the hairs a guide stands for are not one sheet.
+
+    Each strand is moved by its own random vector (3 independent normal components of standard
+    deviation ``tip_std``, one draw per strand from ``seed``), weighted by ``sqrt(s / L)`` along its
+    arc length s: the root stays, the tip moves by the whole vector.
+
+    Args:
+        points: (N,P,3) float strands, root first, P >= 2.
+        tip_std: per-axis standard deviation of the tip's displacement, metres (0 = unchanged).
+        seed: seed of the per-strand draws.
+
+    Returns:
+        (N,P,3) array of the input's dtype.
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] < 2:
+        raise ValueError(f"scatter_strands: points must be (N,P,3) with P >= 2, got {pts.shape}")
+    if not (np.isfinite(tip_std) and 0.0 <= tip_std < 0.05):
+        raise ValueError(f"scatter_strands: tip_std must be in [0, 0.05) m, got {tip_std}")
+    if tip_std == 0.0 or len(pts) == 0:
+        return pts.copy()
+    x = pts.astype(np.float64)
+    cum = np.concatenate([np.zeros((len(x), 1)), np.cumsum(np.linalg.norm(np.diff(x, axis=1), axis=-1), axis=1)], 1)
+    frac = np.divide(cum, cum[:, -1:], out=np.zeros_like(cum), where=cum[:, -1:] > 0)
+    shift = np.random.default_rng([int(seed), 0x5CA7]).standard_normal((len(x), 3)) * float(tip_std)
+    out = x + np.sqrt(frac)[..., None] * shift[:, None, :]
+    return out.astype(pts.dtype if np.issubdtype(pts.dtype, np.floating) else np.float64)
 
 def resample_polyline_list(polylines: Sequence[np.ndarray], n_points: int | None = None) -> np.ndarray:
     """Bring polylines of different lengths to a common point count.

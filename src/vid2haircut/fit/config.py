@@ -178,6 +178,9 @@ class Stage1Config:
     """Relative spread of the dense strands' lengths (uneven ends, :func:`vid2haircut.strands.vary_lengths`):
     the robust spread of strand length within one texel of the 32x32 map over the prior's training
     corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
+    tip_scatter: float = 0.0
+    """Per-axis spread (metres) by which the dense strands' tips fan out around their paths
+    (:func:`vid2haircut.strands.scatter_strands`); 0 = off."""
     device: str = "cpu"
     """Torch device."""
     seed: int = 0
@@ -280,6 +283,9 @@ class Stage2Config:
     """Relative spread of the dense strands' lengths (uneven ends, :func:`vid2haircut.strands.vary_lengths`):
     the robust spread of strand length within one texel of the 32x32 map over the prior's training
     corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
+    tip_scatter: float = 0.0
+    """Per-axis spread (metres) by which the dense strands' tips fan out around their paths
+    (:func:`vid2haircut.strands.scatter_strands`); 0 = off."""
     checkpoint_every: int = 50
     """Write a resumable checkpoint every this many steps (0 = only at the end)."""
     device: str = "cpu"
@@ -290,7 +296,7 @@ class Stage2Config:
 
 # Settings whose value must lie in [low, high): checked when overrides are applied, so a bad value
 # stops a run before it fits rather than when it writes its output.
-_RANGES = {"length_spread": (0.0, 1.0 / 3.0)}
+_RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05)}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:

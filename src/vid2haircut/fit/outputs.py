@@ -110,12 +110,14 @@ def extend_map(z: torch.Tensor, hair: torch.Tensor) -> torch.Tensor:
 
 def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_strands: int, seed: int,
                   head_model: str, collision_margin: float | None = 1e-3, threshold: float = 0.5,
-                  length_spread: float = 0.0) -> StrandSet:
+                  length_spread: float = 0.0, tip_scatter: float = 0.0) -> StrandSet:
     """Dense canonical strands of a map: the map is extended beyond its guides (:func:`extend_map`),
     upsampled by the HAAR scheme (:func:`vid2haircut.prior.hairmap.decode_dense`), pushed out
     of the head (:func:`push_out_of_head`, skipped when ``collision_margin`` is None) and, when
     ``length_spread`` > 0, given uneven ends (:func:`vid2haircut.strands.vary_lengths` with that
-    relative spread and ``seed``; pushed out again, as a longer strand may reach the head)."""
+    relative spread and ``seed``), and when ``tip_scatter`` > 0 fanned out around their paths
+    (:func:`vid2haircut.strands.scatter_strands`, tips moved by that per-axis spread in metres);
+    either way pushed out again, as a moved strand may reach the head."""
     from vid2haircut.prior.hairmap import HairMap, decode_dense
     from vid2haircut.prior.scalp import scalp_grid
 
@@ -124,10 +126,11 @@ def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_
     with torch.no_grad():
         d = decode_dense(HairMap(z_ext, mask.detach()), head, codec, n_strands=n_strands, seed=seed)
     pts = d.points if collision_margin is None else push_out_of_head(d.points, head, collision_margin)
-    if length_spread > 0:
-        from vid2haircut.strands import vary_lengths
+    if length_spread > 0 or tip_scatter > 0:
+        from vid2haircut.strands import scatter_strands, vary_lengths
 
-        pts = torch.as_tensor(vary_lengths(pts.cpu().numpy(), length_spread, seed), device=pts.device)
+        moved = scatter_strands(vary_lengths(pts.cpu().numpy(), length_spread, seed), tip_scatter, seed)
+        pts = torch.as_tensor(moved, device=pts.device)
         pts = pts if collision_margin is None else push_out_of_head(pts, head, collision_margin)
     return StrandSet(pts.cpu().numpy(), {"uv": d.uv.cpu().numpy()}, head_model=head_model)
 

@@ -54,7 +54,7 @@ def stage2_config(settings: dict | None = None, device: str | None = None, seed:
 def _write_common(out_dir: Path, res: FitResult, data: FitData, codec: StrandCodec,
                   cfg: Stage1Config | Stage2Config, title: str) -> None:
     dense = dense_strands(res.z, res.mask, data.head, codec, cfg.n_dense, cfg.seed, data.head_model,
-                          length_spread=cfg.length_spread)
+                          length_spread=cfg.length_spread, tip_scatter=cfg.tip_scatter)
     write_strands(out_dir, res.guides, res.texel_index, dense, data.head_model)
     write_hairmap(out_dir / "hairmap.npz", res.z, res.mask, codec.fingerprint(), data.head_model)
     codec.save(out_dir / "codec.npz")
@@ -102,7 +102,7 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
         # The prior's prediction alone (the "prior" row of the evaluation table).
         save_strands(out / "prior_strands.npz",
                      dense_strands(z0, m0, data.head, codec.to("cpu"), cfg.n_dense, cfg.seed, data.head_model,
-                                   length_spread=cfg.length_spread))
+                                   length_spread=cfg.length_spread, tip_scatter=cfg.tip_scatter))
     else:
         codec = StrandCodec.load(codec_path)
     res = fit_stage1(data, codec, cfg, prior, progress=progress)
