@@ -180,7 +180,8 @@ class Stage1Config:
     corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
     tip_scatter: float = 0.0
     """Per-axis spread (metres) by which the dense strands' tips fan out around their paths
-    (:func:`vid2haircut.strands.scatter_strands`); 0 = off."""
+    (:func:`vid2haircut.strands.scatter_strands`); 0 = off, the default: measured at 2.2 mm and not
+    kept (``benchmarks/RESULTS.md``, "Uneven ends": lower Chamfer_pts, higher Chamfer_angle)."""
     device: str = "cpu"
     """Torch device."""
     seed: int = 0
@@ -285,7 +286,8 @@ class Stage2Config:
     corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
     tip_scatter: float = 0.0
     """Per-axis spread (metres) by which the dense strands' tips fan out around their paths
-    (:func:`vid2haircut.strands.scatter_strands`); 0 = off."""
+    (:func:`vid2haircut.strands.scatter_strands`); 0 = off, the default: measured at 2.2 mm and not
+    kept (``benchmarks/RESULTS.md``, "Uneven ends": lower Chamfer_pts, higher Chamfer_angle)."""
     checkpoint_every: int = 50
     """Write a resumable checkpoint every this many steps (0 = only at the end)."""
     device: str = "cpu"
