@@ -12,9 +12,10 @@ curl back or stop short do not inflate). The pooled robust spread at R = 32 is t
 It also prints how far the strands of one texel fan out: at 25/50/75/100% of the points, each
 strand's root-relative point minus the texel's median one, its component across the texel's median
 direction there, and the per-axis robust spread of that (median distance / 1.1774, the per-axis
-standard deviation for a 2-D normal). The pooled value at the tip is the default ``tip_scatter``
-(:func:`vid2haircut.strands.scatter_strands`, which grows the displacement with the square root of
-the arc-length fraction, as these spreads do).
+standard deviation for a 2-D normal). The pooled value at the tip is the one measured for
+``tip_scatter`` (:func:`vid2haircut.strands.scatter_strands`, which grows the displacement with the
+square root of the arc-length fraction, as these spreads do; off by default, see
+``benchmarks/RESULTS.md``, "Uneven ends").
 
     python benchmarks/length_spread.py [--res 32] [--seeds 8] [--strands 1500]
 """
