@@ -46,8 +46,7 @@ def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
     if n == 0:
         return np.zeros((0, n_points, 3), out_dtype)
     x = pts.astype(np.float64)
-    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)                    # (N,P-1)
-    cum = np.concatenate([np.zeros((n, 1)), np.cumsum(seg, axis=1)], axis=1)  # (N,P)
+    cum = _cumulative_arc(x)                                             # (N,P)
     total = cum[:, -1]                                                   # (N,)
     degenerate = total <= 0.0
     # normalised arc length in [0,1]; degenerate strands get a dummy monotone parameter
@@ -60,6 +59,22 @@ def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
     out[:, 0] = pts[:, 0]
     out[:, -1] = pts[:, -1]
     return out
+
+
+def _cumulative_arc(x: np.ndarray) -> np.ndarray:
+    """(N,P,3) polylines -> (N,P) arc length from the root at each vertex."""
+    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)
+    return np.concatenate([np.zeros((len(x), 1)), np.cumsum(seg, axis=1)], axis=1)
+
+
+def _checked_strands(points: np.ndarray, func: str, name: str, value: float, high: float) -> np.ndarray:
+    """``points`` as an (N,P,3) array with P >= 2, and ``value`` finite in [0, high); else ValueError."""
+    pts = np.asarray(points)
+    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] < 2:
+        raise ValueError(f"{func}: points must be (N,P,3) with P >= 2, got {pts.shape}")
+    if not (np.isfinite(value) and 0.0 <= value < high):
+        raise ValueError(f"{func}: {name} must be in [0, {high:.4g}), got {value}")
+    return pts
 
 
 def _points_at_arclength(x: np.ndarray, cum: np.ndarray, s: np.ndarray) -> np.ndarray:
@@ -104,17 +119,12 @@ def vary_lengths(points: np.ndarray, rel_std: float, seed: int = 0) -> np.ndarra
     Returns:
         (N,P,3) array of the input's dtype.
     """
-    pts = np.asarray(points)
-    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] < 2:
-        raise ValueError(f"vary_lengths: points must be (N,P,3) with P >= 2, got {pts.shape}")
-    if not (np.isfinite(rel_std) and 0.0 <= rel_std < 1.0 / 3.0):
-        raise ValueError(f"vary_lengths: rel_std must be in [0, 1/3), got {rel_std}")
+    pts = _checked_strands(points, "vary_lengths", "rel_std", rel_std, 1.0 / 3.0)
     if rel_std == 0.0 or len(pts) == 0:
         return pts.copy()
     n, p = pts.shape[:2]
     x = pts.astype(np.float64)
-    seg = np.linalg.norm(np.diff(x, axis=1), axis=-1)                    # (N,P-1)
-    cum = np.concatenate([np.zeros((n, 1)), np.cumsum(seg, axis=1)], axis=1)
+    cum = _cumulative_arc(x)
     length = cum[:, -1]
     g = np.clip(np.random.default_rng([int(seed), 0x1E46]).standard_normal(n), -3.0, 3.0)
     target = length * (1.0 + float(rel_std) * g)                         # (N,)
@@ -146,15 +156,11 @@ def scatter_strands(points: np.ndarray, tip_std: float, seed: int = 0) -> np.nda
     Returns:
         (N,P,3) array of the input's dtype.
     """
-    pts = np.asarray(points)
-    if pts.ndim != 3 or pts.shape[2] != 3 or pts.shape[1] < 2:
-        raise ValueError(f"scatter_strands: points must be (N,P,3) with P >= 2, got {pts.shape}")
-    if not (np.isfinite(tip_std) and 0.0 <= tip_std < 0.05):
-        raise ValueError(f"scatter_strands: tip_std must be in [0, 0.05) m, got {tip_std}")
+    pts = _checked_strands(points, "scatter_strands", "tip_std", tip_std, 0.05)
     if tip_std == 0.0 or len(pts) == 0:
         return pts.copy()
     x = pts.astype(np.float64)
-    cum = np.concatenate([np.zeros((len(x), 1)), np.cumsum(np.linalg.norm(np.diff(x, axis=1), axis=-1), axis=1)], 1)
+    cum = _cumulative_arc(x)
     frac = np.divide(cum, cum[:, -1:], out=np.zeros_like(cum), where=cum[:, -1:] > 0)
     shift = np.random.default_rng([int(seed), 0x5CA7]).standard_normal((len(x), 3)) * float(tip_std)
     out = x + np.sqrt(frac)[..., None] * shift[:, None, :]

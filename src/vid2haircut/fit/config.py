@@ -19,6 +19,17 @@ from pathlib import Path
 from typing import Any
 
 
+# Dense-output decoding shared by both stages (vid2haircut.fit.outputs.dense_strands).
+LENGTH_SPREAD = 0.04
+"""Default relative spread of the dense strands' lengths (uneven ends,
+:func:`vid2haircut.strands.vary_lengths`): the robust spread of strand length within one texel of the
+32x32 map over the prior's training corpus (``benchmarks/length_spread.py``)."""
+TIP_SCATTER_MEASURED = 0.0022
+"""The tip fan-out (:func:`vid2haircut.strands.scatter_strands`) measured and not kept: the corpus's
+spread across the strands' direction within one texel. Lower Chamfer_pts, higher Chamfer_angle
+(``benchmarks/RESULTS.md``, "Uneven ends"), so ``tip_scatter`` defaults to 0."""
+
+
 @dataclass
 class LossWeights:
     """Weights of the loss terms; the trainer sums ``weight * term`` over the model's loss dict."""
@@ -174,14 +185,10 @@ class Stage1Config:
     """Guide rendering settings."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
-    length_spread: float = 0.04
-    """Relative spread of the dense strands' lengths (uneven ends, :func:`vid2haircut.strands.vary_lengths`):
-    the robust spread of strand length within one texel of the 32x32 map over the prior's training
-    corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
+    length_spread: float = LENGTH_SPREAD
+    """Relative spread of the dense strands' lengths (see :data:`LENGTH_SPREAD`; 0 = even ends)."""
     tip_scatter: float = 0.0
-    """Per-axis spread (metres) by which the dense strands' tips fan out around their paths
-    (:func:`vid2haircut.strands.scatter_strands`); 0 = off, the default: measured at 2.2 mm and not
-    kept (``benchmarks/RESULTS.md``, "Uneven ends": lower Chamfer_pts, higher Chamfer_angle)."""
+    """Per-axis fan-out of the dense strands' tips, metres (see :data:`TIP_SCATTER_MEASURED`; 0 = off)."""
     device: str = "cpu"
     """Torch device."""
     seed: int = 0
@@ -280,14 +287,10 @@ class Stage2Config:
     """Texels whose baldness-mask value reaches this carry a guide strand."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
-    length_spread: float = 0.04
-    """Relative spread of the dense strands' lengths (uneven ends, :func:`vid2haircut.strands.vary_lengths`):
-    the robust spread of strand length within one texel of the 32x32 map over the prior's training
-    corpus (``benchmarks/length_spread.py``); 0 = every dense strand as long as its blended guides."""
+    length_spread: float = LENGTH_SPREAD
+    """Relative spread of the dense strands' lengths (see :data:`LENGTH_SPREAD`; 0 = even ends)."""
     tip_scatter: float = 0.0
-    """Per-axis spread (metres) by which the dense strands' tips fan out around their paths
-    (:func:`vid2haircut.strands.scatter_strands`); 0 = off, the default: measured at 2.2 mm and not
-    kept (``benchmarks/RESULTS.md``, "Uneven ends": lower Chamfer_pts, higher Chamfer_angle)."""
+    """Per-axis fan-out of the dense strands' tips, metres (see :data:`TIP_SCATTER_MEASURED`; 0 = off)."""
     checkpoint_every: int = 50
     """Write a resumable checkpoint every this many steps (0 = only at the end)."""
     device: str = "cpu"
