@@ -4,8 +4,9 @@ For each (family, seed) of a small fixed set (seeds >= 1000, not used to train t
 motion on) it synthesises the sequence, runs the front stages (keyframes, head fit, targets) and
 then the fitting variants through the same file-level entry points as the pipeline:
 
-- ``oracle``: the ground truth itself encoded into the hair map (nearest strand per texel, same
-  dense decoding as the fits): the floor of the representation, not a method,
+- ``oracle``: the ground truth itself encoded into the hair map (nearest strand per texel, the
+  same dense decoding as Stage 2's output, carved with its keyframes): the floor of the
+  representation, not a method,
 - ``prior``: the prior network's prediction on the reference keyframe (no optimisation),
 - ``stage1``: single-view fit (Im2Haircut baseline; the default optimises Z from the prior's
   prediction, ``stage1_ft`` fine-tunes the prior network as published),
@@ -161,13 +162,14 @@ def prior_strands(seq: dict, prior_dir: Path, out: Path, decoding: dict) -> Path
     return path
 
 
-def oracle_strands(seq: dict, prior_dir: Path, out: Path, decoding: dict) -> Path:
+def oracle_strands(seq: dict, prior_dir: Path, out: Path, cfg) -> Path:
     """Dense strands of the ground truth encoded into the hair map (cached): each texel holds the
-    codec coefficients of its nearest ground-truth strand, decoded like every fit's output. The
-    hair map and codec are written next to them (``hairmap.npz``, ``codec.npz``), so Stage 2 can
-    start from them like from a Stage 1 folder (decoded with Stage 1's ``decoding`` settings)."""
+    codec coefficients of its nearest ground-truth strand, decoded like Stage 2's output (``cfg``, a
+    Stage 2 config: its decoding settings, and carving with its keyframes). The hair map and codec
+    are written next to them (``hairmap.npz``, ``codec.npz``), so Stage 2 can start from them like
+    from a Stage 1 folder."""
     from vid2haircut.fit.data import load_fit_data
-    from vid2haircut.fit.outputs import dense_strands, write_hairmap
+    from vid2haircut.fit.outputs import stage_strands, write_hairmap
     from vid2haircut.io.strand_formats import load_strands, save_strands
     from vid2haircut.prior.hairmap import encode_strands
     from vid2haircut.prior.model import load_prior
@@ -175,11 +177,10 @@ def oracle_strands(seq: dict, prior_dir: Path, out: Path, decoding: dict) -> Pat
     path = out / "strands.npz"
     if not (path.is_file() and (out / "hairmap.npz").is_file()):
         data = load_fit_data(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"],
-                             n_keyframes=1, occlude_head=False)
+                             size=cfg.render.size, n_keyframes=cfg.n_keyframes, occlude_head=cfg.render.occlude_head)
         _, codec, _ = load_prior(prior_dir)
         hm = encode_strands(load_strands(seq["gt"]), data.head, codec, res=32)
-        save_strands(path, dense_strands(hm.z, hm.mask, data.head, codec, 10000, 0, data.head_model,
-                                         **decoding))
+        save_strands(path, stage_strands(hm.z, hm.mask, data, codec, cfg)[0])
         write_hairmap(out / "hairmap.npz", hm.z, hm.mask, codec.fingerprint(), data.head_model)
         codec.save(out / "codec.npz")
     return path
@@ -189,14 +190,16 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
                 seed: int = 0) -> tuple[Path, float]:
     """Run one variant (cached) -> (strands.npz, fit seconds); Stage 2 variants with ``seed`` != 0
     run under ``<variant>_seed<seed>`` with ``Stage2Config.seed`` set (same Stage 1 start)."""
-    from vid2haircut.fit.pipeline import run_stage1, run_stage2, stage1_config
+    from vid2haircut.fit.pipeline import run_stage1, run_stage2, stage1_config, stage2_config
 
     out = work / "runs" / seq["subject"] / (name if seed == 0 else f"{name}_seed{seed}")
     common = (seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"])
-    if name in ("prior", "oracle"):
+    if name == "prior":
         c1 = stage1_config(settings.get("stage1", {}))
         decoding = {"length_spread": c1.length_spread, "tip_scatter": c1.tip_scatter}
-        return (prior_strands if name == "prior" else oracle_strands)(seq, prior_dir, out, decoding), 0.0
+        return prior_strands(seq, prior_dir, out, decoding), 0.0
+    if name == "oracle":
+        return oracle_strands(seq, prior_dir, out, stage2_config(settings.get("stage2", {}))), 0.0
     rec = out / ("stage1.json" if name in STAGE1_VARIANTS else "stage2.json")
     if not rec.is_file():
         if name in STAGE1_VARIANTS:

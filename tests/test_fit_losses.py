@@ -344,3 +344,62 @@ def test_lr_decay_factor_is_a_half_cosine_over_the_last_steps():
     assert all(lr_decay_factor(s, 10, 0, 0.1) == 1.0 for s in range(10))
     with pytest.raises(ValueError, match="final factor"):
         lr_decay_factor(9, 10, 4, 0.0)
+
+
+def _outside_scene(width: int = 32, height: int = 24):
+    """A camera 1 m in front of the origin looking down +z, and a distance field that is 0 on the
+    left half of the image (the 'silhouette') and grows by 1 per pixel to the right of column 15."""
+    K = torch.tensor([[[100.0, 0.0, (width - 1) / 2], [0.0, 100.0, (height - 1) / 2], [0.0, 0.0, 1.0]]])
+    cfh = torch.eye(4)[None].clone()
+    cfh[0, 2, 3] = 1.0
+    cols = torch.arange(width, dtype=torch.float32)
+    outside = torch.clamp(cols - 15.0, min=0.0)[None, None].expand(1, height, width).contiguous()
+    return K, cfh, outside
+
+
+def test_outside_loss_counts_only_shown_points_beyond_the_silhouette():
+    from vid2haircut.fit.losses import outside_loss
+
+    K, cfh, outside = _outside_scene()
+    # column u = 15.5 + 100 x (z = 1): x = 0.05 -> u = 20.5, 5 px beyond column 15
+    pts = torch.tensor([[[[0.05, 0.0, 0.0], [-0.05, 0.0, 0.0]]]])            # (B=1,N=1,P=2,3)
+    loss = outside_loss(pts, K, cfh, outside, None, tolerance=0.5)
+    assert float(loss) == pytest.approx((5.5 - 0.5) / 2, abs=1e-4)          # the point on the mask pays 0
+    # hidden behind a head surface nearer than the point: pays nothing; a surface behind it: pays
+    near_head = torch.full_like(outside, 0.5)
+    far_head = torch.full_like(outside, 2.0)
+    assert float(outside_loss(pts, K, cfh, outside, near_head)) == 0.0
+    assert float(outside_loss(pts, K, cfh, outside, far_head)) == pytest.approx(float(loss))
+    # outside the image (u > W - 1) or behind the camera: nothing
+    off = torch.tensor([[[[0.5, 0.0, 0.0], [0.0, 0.0, -1.5]]]])
+    assert float(outside_loss(off, K, cfh, outside, None)) == 0.0
+
+
+def test_outside_loss_gradient_points_towards_the_silhouette():
+    from vid2haircut.fit.losses import outside_loss
+
+    K, cfh, outside = _outside_scene()
+    pts = torch.tensor([[[[0.052, 0.01, 0.0]]]], requires_grad=True)
+    outside_loss(pts, K, cfh, outside, None).backward()
+    g = pts.grad[0, 0, 0]
+    assert float(g[0]) > 0 and abs(float(g[1])) < 1e-6           # descending moves the point left, onto the mask
+    # finite differences of the bilinear field
+    eps = 1e-4
+    with torch.no_grad():
+        f = (lambda dx: float(outside_loss(pts + torch.tensor([dx, 0.0, 0.0]), K, cfh, outside, None)))
+        assert float(g[0]) == pytest.approx((f(eps) - f(-eps)) / (2 * eps), rel=1e-2)
+
+
+def test_downsample_targets_outside_distance():
+    h = w = 16
+    mask = np.zeros((h, w), np.float32)
+    mask[:, :8] = 1.0
+    t = {"mask": mask, "angle": np.zeros((h, w), np.float32), "confidence": np.ones((h, w), np.float32),
+         "depth": np.zeros((h, w), np.float32), "depth_valid": np.ones((h, w), bool)}
+    lo = downsample_targets(t, 8, 8)
+    out = lo["outside"]
+    assert out.shape == (8, 8) and (out[:, :4] == 0).all()
+    # full-resolution distances 1..8 of columns 8..15, averaged in pairs and halved: 0.75, 1.75, ...
+    assert np.allclose(out[0, 4:], [0.75, 1.75, 2.75, 3.75], atol=0.05)
+    t["mask"] = np.zeros((h, w), np.float32)                      # an empty mask constrains nothing
+    assert (downsample_targets(t, 8, 8)["outside"] == 0).all()

@@ -297,6 +297,7 @@ def test_files_cli_outputs_and_resume(toy, tmp_path):
     assert dense.n_strands == 300 and dense.head_model == "proxy-v1"
     first = json.loads((out / "stage2.json").read_text())
     assert first["resumed_from_step"] is None and first["keyframes"] == [0, 1, 2]
+    assert 0.0 <= first["carved_fraction"] < 1.0 and first["config"]["carve_tolerance"] == 1.0
     assert args.func(args) == 0                                             # again: resumes at the end
     again = json.loads((out / "stage2.json").read_text())
     assert again["resumed_from_step"] == FAST["iterations"] - 1
@@ -327,3 +328,29 @@ def test_silhouette_opacity_thins_only_the_silhouette(toy):
     assert float(g.abs().sum()) > 0.0
     with pytest.raises(ValueError, match="silhouette_opacity"):
         render_frames(pts, toy.data, frames, apply_overrides(model.cfg.render, {"silhouette_opacity": 0.0}))
+
+
+def test_outside_term_pulls_stray_strands_and_respects_the_gate(toy):
+    z0, m0 = _start(toy)
+    assert "outside" not in Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(weights={"outside": 1.0}, visibility_unit="strand"), z0, m0)
+    assert toy.data.outside is not None and float(toy.data.outside.max()) > 1.0
+    canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
+    frames = torch.arange(3)
+    moved, _ = model.deformed(canon, frames, 0.0)
+    out = render_frames(moved, toy.data, frames, model.cfg.render)
+    model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
+    from vid2haircut.fit.scene import outside_term
+    term = outside_term(moved, toy.data, frames, model.cfg.outside_tolerance)
+    assert float(term.detach()) > 0.0                         # the mean strand sticks out of the toy's hair
+    term.backward()
+    seen = out.visibility.any(-1).any(0)                      # (N,) strands some frame shows
+    g = canon.grad.norm(dim=-1).amax(-1)
+    assert float(g[~seen].max()) == 0.0 and float(g[seen].max()) > 0.0
+    left = {}
+    for w in (0.0, 100.0):                                    # after the same steps, with and without the term
+        cfg = _cfg(iterations=12, weights={"outside": w}, switches={"use_deformation": False})
+        res = fit_stage2(toy.data, toy.codec, cfg, z0, m0, progress=False)
+        pts = res.guides[:, model.layout.render_index][None].expand(3, -1, -1, -1)
+        left[w] = float(outside_term(pts, toy.data, frames, model.cfg.outside_tolerance))
+    assert left[100.0] < 0.7 * left[0.0]

@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "scatter_strands", "vary_lengths"]
+__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "scatter_strands", "vary_lengths", "cut_strands"]
 
 
 def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
@@ -138,6 +138,41 @@ def vary_lengths(points: np.ndarray, rel_std: float, seed: int = 0) -> np.ndarra
     out = _points_at_arclength(ext, ext_cum, target[:, None] * np.linspace(0.0, 1.0, p)[None, :])
     out = out.astype(pts.dtype if np.issubdtype(pts.dtype, np.floating) else np.float64)
     out[:, 0] = pts[:, 0]
+    return out
+
+
+def cut_strands(points: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Cut each strand after its first ``keep[i]`` points and resample it to its P points.
+
+    Args:
+        points: (N,P,3) float strands, root first.
+        keep: (N,) int in [2, P]: points kept; the strand ends at point ``keep[i] - 1`` and is
+            resampled uniformly by arc length over what is left (``keep[i] == P``: unchanged).
+
+    Returns:
+        (N,P,3) array of the input's dtype; uncut strands are bit-for-bit the input.
+
+    Raises:
+        ValueError when the shapes disagree or a count is outside [2, P].
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 3 or pts.shape[-1] != 3:
+        raise ValueError(f"cut_strands: points must be (N,P,3), got {pts.shape}")
+    n, p = pts.shape[:2]
+    k = np.asarray(keep).astype(np.int64).reshape(-1)
+    if k.shape != (n,):
+        raise ValueError(f"cut_strands: keep must be ({n},), got {np.asarray(keep).shape}")
+    if n and (k.min() < min(2, p) or k.max() > p):
+        raise ValueError(f"cut_strands: keep must lie in [2, {p}], got [{k.min()}, {k.max()}]")
+    out = pts.copy()
+    cut = np.nonzero(k < p)[0]
+    if len(cut):
+        x = pts[cut].astype(np.float64)
+        cum = _cumulative_arc(x)
+        length = cum[np.arange(len(cut)), k[cut] - 1]
+        res = _points_at_arclength(x, cum, length[:, None] * np.linspace(0.0, 1.0, p)[None, :])
+        res[:, 0] = x[:, 0]
+        out[cut] = res.astype(out.dtype)
     return out
 
 

@@ -24,6 +24,11 @@ LENGTH_SPREAD = 0.04
 """Default relative spread of the dense strands' lengths (uneven ends,
 :func:`vid2haircut.strands.vary_lengths`): the robust spread of strand length within one texel of the
 32x32 map over the prior's training corpus (``benchmarks/length_spread.py``)."""
+CARVE_TOLERANCE = 1.0
+"""Default of ``carve_tolerance`` (both stages): the dense strands are cut back where a keyframe
+shows them more than this many fitting pixels outside its target silhouette, in front of the head
+(:mod:`vid2haircut.fit.carve`; 0 = off). Measured on the quality benchmark (``benchmarks/RESULTS.md``,
+"Silhouette carving")."""
 TIP_SCATTER_MEASURED = 0.0022
 """The tip fan-out (:func:`vid2haircut.strands.scatter_strands`) measured and not kept: the corpus's
 spread across the strands' direction within one texel. Lower Chamfer_pts, higher Chamfer_angle
@@ -40,6 +45,10 @@ class LossWeights:
     """Undirected L1 between rendered and target 2D hair directions (method.md: 0.8)."""
     depth: float = 0.1
     """L1 between quantile-normalised rendered and target depth inside both masks (Vid2Haircut: 0.1)."""
+    outside: float = 0.0
+    """Strand points a keyframe shows outside its target silhouette pay their distance to it, in
+    fitting pixels beyond ``outside_tolerance`` (:func:`vid2haircut.fit.losses.outside_loss`; not
+    published)."""
     penetration: float = 1.0e4
     """mean(relu(-sdf)) of the strand points, metres (Vid2Haircut: 1e4)."""
     smooth_length: float = 1.0
@@ -172,6 +181,9 @@ class Stage1Config:
     ``benchmarks/quality.py`` (6 sequences, 2 Stage 2 seeds): 1 mm lowers Chamfer_pts of Stage 1
     from 0.292 to 0.272 and of Stage 2 from 0.198 to 0.192 (1e-4 m^2); 2 mm made Stage 2 worse on
     the shoulder-length and short styles."""
+    outside_tolerance: float = 0.5
+    """Distance from the target silhouette, in fitting pixels, that :attr:`LossWeights.outside` leaves
+    alone (the masks are soft and the head poses off by about a pixel)."""
     min_bend_radius: float = 0.003
     """Tightest bend (metres) that :attr:`LossWeights.bend` leaves alone."""
     map_res: int = 32
@@ -189,6 +201,12 @@ class Stage1Config:
     """Relative spread of the dense strands' lengths (see :data:`LENGTH_SPREAD`; 0 = even ends)."""
     tip_scatter: float = 0.0
     """Per-axis fan-out of the dense strands' tips, metres (see :data:`TIP_SCATTER_MEASURED`; 0 = off)."""
+    carve_tolerance: float = CARVE_TOLERANCE
+    """Silhouette carving of the dense strands with this stage's keyframes, fitting pixels (see
+    :data:`CARVE_TOLERANCE`; 0 = off)."""
+    carve_min_fraction: float = 0.5
+    """A carved strand is cut before its first point outside the silhouettes only when at least this
+    fraction of the points from there to the tip are outside too (:func:`vid2haircut.fit.carve.carve_lengths`)."""
     device: str = "cpu"
     """Torch device."""
     seed: int = 0
@@ -229,6 +247,8 @@ class Stage2Config:
     bangs 0.238 -> 0.190)."""
     penetration_margin: float = 0.001
     """As :attr:`Stage1Config.penetration_margin`."""
+    outside_tolerance: float = 0.5
+    """As :attr:`Stage1Config.outside_tolerance`."""
     lr_mlp: float = 1.0e-3
     """Adam learning rate of the deformation MLP and texel embeddings (method.md: 1e-2). Adam's first
     steps move each of the 128 zero-initialised output weights by about the learning rate, and the
@@ -291,6 +311,12 @@ class Stage2Config:
     """Relative spread of the dense strands' lengths (see :data:`LENGTH_SPREAD`; 0 = even ends)."""
     tip_scatter: float = 0.0
     """Per-axis fan-out of the dense strands' tips, metres (see :data:`TIP_SCATTER_MEASURED`; 0 = off)."""
+    carve_tolerance: float = CARVE_TOLERANCE
+    """Silhouette carving of the dense strands with this stage's keyframes, fitting pixels (see
+    :data:`CARVE_TOLERANCE`; 0 = off)."""
+    carve_min_fraction: float = 0.5
+    """A carved strand is cut before its first point outside the silhouettes only when at least this
+    fraction of the points from there to the tip are outside too (:func:`vid2haircut.fit.carve.carve_lengths`)."""
     checkpoint_every: int = 50
     """Write a resumable checkpoint every this many steps (0 = only at the end)."""
     device: str = "cpu"
@@ -301,7 +327,8 @@ class Stage2Config:
 
 # Settings whose value must lie in [low, high): checked when overrides are applied, so a bad value
 # stops a run before it fits rather than when it writes its output.
-_RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05)}
+_RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve_tolerance": (0.0, 1.0e3),
+           "carve_min_fraction": (0.0, math.nextafter(1.0, 2.0))}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:

@@ -50,6 +50,8 @@ class FitData:
         world_from_head: (M,4,4) float64 head poses.
         reference_targets: full-resolution numpy targets of the reference keyframe (prior input).
         reference_camera: (K (3,3), world_2_cam (4,4)) full-resolution camera of the reference.
+        outside: (M,H,W) float32 distance, in fitting pixels, from each pixel centre to the target
+            hair silhouette (0 on it; from the full-resolution mask), or None.
     """
 
     frames: list[int]
@@ -68,6 +70,7 @@ class FitData:
     world_from_head: np.ndarray
     reference_targets: dict[str, np.ndarray] | None = None
     reference_camera: tuple[np.ndarray, np.ndarray] | None = None
+    outside: torch.Tensor | None = None
 
     @property
     def n_frames(self) -> int:
@@ -81,7 +84,8 @@ class FitData:
         return FitData([self.frames[i] for i in index], pick(self.K), pick(self.cam_from_head), self.width,
                        self.height, pick(self.mask), pick(self.direction), pick(self.confidence), pick(self.depth),
                        pick(self.depth_valid), pick(self.head_depth), self.head, self.head_model,
-                       self.world_from_head[np.asarray(index)], self.reference_targets, self.reference_camera)
+                       self.world_from_head[np.asarray(index)], self.reference_targets, self.reference_camera,
+                       pick(self.outside))
 
     def to(self, device: torch.device | str) -> "FitData":
         """The data on another device."""
@@ -89,7 +93,7 @@ class FitData:
         return FitData(self.frames, mv(self.K), mv(self.cam_from_head), self.width, self.height, mv(self.mask),
                        mv(self.direction), mv(self.confidence), mv(self.depth), mv(self.depth_valid),
                        mv(self.head_depth), self.head, self.head_model, self.world_from_head,
-                       self.reference_targets, self.reference_camera)
+                       self.reference_targets, self.reference_camera, mv(self.outside))
 
 
 def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
@@ -106,7 +110,9 @@ def scale_intrinsics(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
 def downsample_targets(t: dict[str, np.ndarray], width: int, height: int) -> dict[str, np.ndarray]:
     """Targets of one frame (full-resolution ``mask``, ``angle``, ``confidence``, ``depth``,
     ``depth_valid`` (H0,W0)) -> ``mask``, ``direction`` (H,W,2), ``confidence``, ``depth``,
-    ``depth_valid`` at (height, width) (see the module docstring)."""
+    ``depth_valid`` at (height, width) (see the module docstring), and ``outside`` (H,W): the distance,
+    in output pixels, from each output pixel to the nearest full-resolution mask pixel (> 0.5), 0 on
+    the mask (the silhouette term's distance field, :func:`vid2haircut.fit.losses.outside_loss`)."""
     import cv2
 
     def area(a: np.ndarray) -> np.ndarray:
@@ -126,7 +132,11 @@ def downsample_targets(t: dict[str, np.ndarray], width: int, height: int) -> dic
     vfrac = area(valid.astype(np.float32))
     dsum = area(np.where(valid, np.asarray(t["depth"], np.float32), 0.0))
     mask_lo = area(mask)
-    return {"mask": mask_lo, "direction": direction,
+    off = (mask <= 0.5).astype(np.uint8)
+    # an empty mask says nothing about where hair may not be: no distance field then
+    dist = cv2.distanceTransform(off, cv2.DIST_L2, 5) if not off.all() else np.zeros(off.shape, np.float32)
+    outside = area(dist) * (0.5 * (width / mask.shape[1] + height / mask.shape[0]))
+    return {"mask": mask_lo, "direction": direction, "outside": outside.astype(np.float32),
             "confidence": (area(conf) * coherence * (mask_lo > 0.5)).astype(np.float32),
             "depth": np.where(vfrac > 0, dsum / np.maximum(vfrac, 1e-12), 0.0).astype(np.float32),
             "depth_valid": vfrac >= 0.5}
@@ -187,7 +197,7 @@ def make_fit_data(frames: list[int], targets: list[dict[str, np.ndarray]], K: np
     return FitData(list(frames), K_t, cfh_t, width, height, stack("mask"), stack("direction"), stack("confidence"),
                    stack("depth"), stack("depth_valid", torch.bool), head_depth, head, head_model,
                    np.asarray(world_from_head, np.float64), ref,
-                   (np.asarray(K, np.float64), np.asarray(world_2_cam, np.float64)))
+                   (np.asarray(K, np.float64), np.asarray(world_2_cam, np.float64)), stack("outside"))
 
 
 def load_fit_camera(dataset_root: str | Path, subject: str, serial: str) -> Camera:

@@ -8,6 +8,10 @@ Image terms compare a :class:`~vid2haircut.render.StrandRender` of B keyframes w
   with weight ``target mask * confidence`` over pixels where the render has hair.
 - :func:`depth_loss`: L1 between rendered and target relative depth inside both masks; the rendered
   camera depth is normalised per frame like the targets (5% / 95% quantiles -> 0 / 1).
+- :func:`outside_loss`: strand points that a keyframe shows outside its target silhouette (in the
+  image, in front of the head) pay their distance to the silhouette, in pixels: the silhouette's
+  distance field, which pulls stray strands back however few of them there are, where the L1 on
+  coverage sees a lone translucent guide only faintly.
 
 Geometry terms act on strands in the canonical head frame:
 
@@ -35,9 +39,11 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from vid2haircut.render.project import project_points
+
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
            "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss",
-           "quantile_normalize", "anchor_loss", "bend_loss"]
+           "quantile_normalize", "anchor_loss", "bend_loss", "outside_loss"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -100,6 +106,39 @@ def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, targ
         d = quantile_normalize(pred_depth[b], region)
         terms.append((d - target_depth[b])[region].abs().mean())
     return torch.stack(terms).mean() if terms else pred_depth.sum() * 0.0
+
+
+def outside_loss(points: Tensor, K: Tensor, cam_from_head: Tensor, outside: Tensor, head_depth: Tensor | None,
+                 tolerance: float = 0.5, near: float = 1e-2) -> Tensor:
+    """Mean distance (pixels) beyond ``tolerance`` from the target silhouette of the projected points.
+
+    Args:
+        points: (B,N,P,3) strands in the canonical head frame, one set per keyframe (metres).
+        K: (B,3,3) intrinsics (pixel centres at integer coordinates); cam_from_head: (B,4,4).
+        outside: (B,H,W) distance from each pixel to the target silhouette, pixels (0 on it).
+        head_depth: (B,H,W) camera z of the head surface (+inf off it) or None: points behind the
+            head at their pixel do not show and pay nothing.
+        tolerance: distance (pixels) that costs nothing (masks are soft, poses off by a pixel).
+        near: points closer to the camera than this pay nothing.
+
+    Returns:
+        scalar: mean over all B*N*P points of relu(d - tolerance), d sampled bilinearly from
+        ``outside`` at the point's projection; points outside the image or hidden by the head give 0.
+    """
+    b, n, p, _ = points.shape
+    h, w = outside.shape[-2:]
+    uv, z = project_points(points.reshape(b, n * p, 3), K, cam_from_head, near)
+    u, v = uv[..., 0], uv[..., 1]
+    valid = (z > near) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+    if head_depth is not None:
+        with torch.no_grad():
+            ui = u.round().clamp(0, w - 1).long()
+            vi = v.round().clamp(0, h - 1).long()
+            valid = valid & (z < torch.gather(head_depth.reshape(b, -1), 1, vi * w + ui))
+    grid = torch.stack([2.0 * u / max(w - 1, 1) - 1.0, 2.0 * v / max(h - 1, 1) - 1.0], -1)[:, None]
+    d = F.grid_sample(outside[:, None].to(grid), grid, mode="bilinear", align_corners=True,
+                      padding_mode="border")[:, 0, 0]                         # (B,N*P)
+    return (torch.relu(d - tolerance) * valid).sum() / max(b * n * p, 1)
 
 
 def penetration_loss(points: Tensor, sdf: Callable[[Tensor], Tensor], margin: float = 0.0) -> Tensor:

@@ -30,7 +30,8 @@ from vid2haircut.io.atomic import atomic_path, write_image, write_json, write_np
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 
-__all__ = ["write_hairmap", "load_hairmap", "write_strands", "dense_strands", "push_out_of_head", "extend_map",
+__all__ = ["write_hairmap", "load_hairmap", "write_strands", "dense_strands", "stage_strands", "push_out_of_head",
+           "extend_map",
            "render_panel", "write_renders",
            "write_loss_curve", "save_torch", "load_torch"]
 
@@ -133,6 +134,24 @@ def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_
         pts = torch.as_tensor(moved, device=pts.device)
         pts = pts if collision_margin is None else push_out_of_head(pts, head, collision_margin)
     return StrandSet(pts.cpu().numpy(), {"uv": d.uv.cpu().numpy()}, head_model=head_model)
+
+
+def stage_strands(z: torch.Tensor, mask: torch.Tensor, data: Any, codec: Any, cfg: Any) -> tuple[StrandSet, float]:
+    """A stage's dense output: :func:`dense_strands` with the stage's decoding settings (``n_dense``,
+    ``seed``, ``length_spread``, ``tip_scatter``), then, when ``carve_tolerance`` > 0, carved to the
+    silhouettes of the stage's keyframes ``data`` (:func:`vid2haircut.fit.carve.carve_strands`).
+
+    Returns:
+        (dense strands, fraction of them that carving cut).
+    """
+    dense = dense_strands(z, mask, data.head, codec, cfg.n_dense, cfg.seed, data.head_model,
+                          length_spread=cfg.length_spread, tip_scatter=cfg.tip_scatter)
+    if cfg.carve_tolerance <= 0:
+        return dense, 0.0
+    from vid2haircut.fit.carve import carve_strands
+
+    carved = carve_strands(dense.points, data, cfg.carve_tolerance, cfg.carve_min_fraction)
+    return StrandSet(carved.points, dict(dense.attributes), head_model=dense.head_model), carved.cut_fraction
 
 
 def write_strands(out_dir: str | Path, guides: torch.Tensor, texel_index: torch.Tensor, dense: StrandSet,

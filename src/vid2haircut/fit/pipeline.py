@@ -19,8 +19,8 @@ import torch
 
 from vid2haircut.fit.config import Stage1Config, Stage2Config, apply_overrides, config_to_dict
 from vid2haircut.fit.data import FitData, load_fit_data
-from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, save_torch, write_hairmap,
-                                     write_loss_curve, write_record, write_renders, write_strands)
+from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, save_torch, stage_strands,
+                                     write_hairmap, write_loss_curve, write_record, write_renders, write_strands)
 from vid2haircut.fit.stage1 import FitResult, fit_stage1, initial_hairmap, prior_view_input
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2
 from vid2haircut.io.strand_formats import save_strands
@@ -52,14 +52,15 @@ def stage2_config(settings: dict | None = None, device: str | None = None, seed:
 
 
 def _write_common(out_dir: Path, res: FitResult, data: FitData, codec: StrandCodec,
-                  cfg: Stage1Config | Stage2Config, title: str) -> None:
-    dense = dense_strands(res.z, res.mask, data.head, codec, cfg.n_dense, cfg.seed, data.head_model,
-                          length_spread=cfg.length_spread, tip_scatter=cfg.tip_scatter)
+                  cfg: Stage1Config | Stage2Config, title: str) -> float:
+    """Write the artifacts both stages share; returns the fraction of dense strands carving cut."""
+    dense, cut = stage_strands(res.z, res.mask, data, codec, cfg)
     write_strands(out_dir, res.guides, res.texel_index, dense, data.head_model)
     write_hairmap(out_dir / "hairmap.npz", res.z, res.mask, codec.fingerprint(), data.head_model)
     codec.save(out_dir / "codec.npz")
     write_renders(out_dir, res.render, data, res.frames)
     write_loss_curve(out_dir / "loss_curve.png", res.history, cfg.weights, title)
+    return cut
 
 
 def _final_terms(res: FitResult) -> dict:
@@ -107,8 +108,8 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
         codec = StrandCodec.load(codec_path)
     res = fit_stage1(data, codec, cfg, prior, progress=progress)
     codec = codec.to("cpu")
-    _write_common(out, res, data, codec, cfg, "stage 1")
-    record = {"stage": "stage1", "config": config_to_dict(cfg), "reference": data.frames[0],
+    cut = _write_common(out, res, data, codec, cfg, "stage 1")
+    record = {"stage": "stage1", "config": config_to_dict(cfg), "reference": data.frames[0], "carved_fraction": cut,
               "fit_size": [data.width, data.height], "n_guides": int(res.texel_index.numel()),
               "prior": str(prior_dir) if prior_dir is not None else None,
               "codec_fingerprint": codec.fingerprint(), "fit_seconds": res.seconds,
@@ -173,13 +174,13 @@ def run_stage2(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
 
     res = fit_stage2(data, codec, cfg, z, mask, progress=progress, resume=state, on_step=on_step)
     codec = codec.to("cpu")
-    _write_common(out, res, data, codec, cfg, "stage 2")
+    cut = _write_common(out, res, data, codec, cfg, "stage 2")
     deform = res.extra["deform"]
     if deform is not None:
         save_torch(out / "deform.pt", {"state_dict": {k: v.cpu() for k, v in deform.state_dict().items()},
                                        "config": dataclasses.asdict(deform.cfg), "frames": list(data.frames),
                                        "texel_index": res.texel_index.cpu()})
-    record = {"stage": "stage2", "config": config_to_dict(cfg), "keyframes": data.frames,
+    record = {"stage": "stage2", "config": config_to_dict(cfg), "keyframes": data.frames, "carved_fraction": cut,
               "fit_size": [data.width, data.height], "n_guides": int(res.texel_index.numel()),
               "codec_fingerprint": codec.fingerprint(), "signature": sig,
               "resumed_from_step": None if state is None else int(state["step"]),

@@ -15,12 +15,13 @@ from torch import Tensor, nn
 
 from vid2haircut.fit.config import RenderSettings
 from vid2haircut.fit.data import FitData
-from vid2haircut.fit.losses import TexelGraph, depth_loss, direction_loss, silhouette_loss, texel_graph
+from vid2haircut.fit.losses import (TexelGraph, depth_loss, direction_loss, outside_loss, silhouette_loss,
+                                   texel_graph)
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "ZMap", "length_step_gain",
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "ZMap", "length_step_gain",
            "z_optimizer"]
 
 
@@ -111,6 +112,19 @@ def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, 
     return {"silhouette": silhouette_loss(out.silhouette, mask_t),
             "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
             "depth": depth_loss(out.depth, out.mask.detach(), data.depth[fr], data.depth_valid[fr])}
+
+
+def outside_term(points: Tensor, data: FitData, frames: Tensor, tolerance: float) -> Tensor:
+    """:func:`~vid2haircut.fit.losses.outside_loss` of (B,N,P,3) canonical strands in keyframes ``frames`` (B,).
+
+    Raises:
+        ValueError when ``data`` has no distance field (``FitData.outside``).
+    """
+    if data.outside is None:
+        raise ValueError("the outside term needs FitData.outside (the targets' silhouette distance field)")
+    fr = frames.to(data.K.device)
+    hd = data.head_depth[fr] if data.head_depth is not None else None
+    return outside_loss(points, data.K[fr], data.cam_from_head[fr], data.outside[fr], hd, tolerance)
 
 
 class ZMap(nn.Module):

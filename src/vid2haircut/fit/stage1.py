@@ -32,7 +32,7 @@ from vid2haircut.fit.config import Stage1Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.losses import bend_loss, penetration_loss
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
-                                   z_optimizer)
+                                   outside_term, z_optimizer)
 from vid2haircut.fit.trainer import History, Trainer
 from vid2haircut.prior.codec import StrandCodec, component_mask
 from vid2haircut.render import StrandRender
@@ -154,6 +154,8 @@ class Stage1Model(nn.Module):
         self.last_render = out
         losses = image_losses(out, self.data, self.frames)
         losses["penetration"] = penetration_loss(pts, self.data.head.sdf, self.cfg.penetration_margin)
+        if self.cfg.weights.outside > 0.0:
+            losses["outside"] = outside_term(render_pts[None], self.data, self.frames, self.cfg.outside_tolerance)
         if self.cfg.weights.bend > 0.0:
             losses["bend"] = bend_loss(pts, self.cfg.min_bend_radius)
         return losses

@@ -29,7 +29,7 @@ from vid2haircut.fit.deform import DeformationField, DeformConfig
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, motion_loss, pca_consistency_loss, penetration_loss,
                                     smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
-                                   z_optimizer)
+                                   outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer, lr_decay_factor
 from vid2haircut.fit.visibility import (VisibilityGate, check_visibility_unit, gate_visibility, point_visibility,
@@ -201,6 +201,8 @@ class Stage2Model(nn.Module):
             self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames)
+        if cfg.weights.outside > 0.0:
+            losses["outside"] = outside_term(moved, self.data, frames, cfg.outside_tolerance)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
         if scale > 0.0:
             pen = pen + penetration_loss(moved, self.data.head.sdf, self.cfg.penetration_margin)
