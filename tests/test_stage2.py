@@ -302,6 +302,13 @@ def test_files_cli_outputs_and_resume(toy, tmp_path):
     again = json.loads((out / "stage2.json").read_text())
     assert again["resumed_from_step"] == FAST["iterations"] - 1
     assert np.array_equal(load_strands(out / "strands.npz").points, dense.points)
+    # a decoding-only setting resumes the finished fit and decodes it again
+    args = _stage2_parser().parse_args(argv[:-1] + [json.dumps({**FAST, "render": {"n_points": 16, "size": 40},
+                                                                "carve_tolerance": 0.0})])
+    assert args.func(args) == 0
+    plain = json.loads((out / "stage2.json").read_text())
+    assert plain["resumed_from_step"] == FAST["iterations"] - 1 and plain["carved_fraction"] == 0.0
+    assert plain["config"]["carve_tolerance"] == 0.0 and plain["signature"] == first["signature"]
     # fewer keyframes is one setting
     args = _stage2_parser().parse_args(argv[:-1] + [json.dumps({**FAST, "iterations": 2, "n_keyframes": 1,
                                                                 "render": {"n_points": 16, "size": 40}})])

@@ -30,6 +30,9 @@ __all__ = ["run_stage1", "run_stage2", "stage1_config", "stage2_config"]
 
 log = logging.getLogger(__name__)
 
+DECODING_ONLY = ("n_dense", "length_spread", "tip_scatter", "carve_tolerance", "carve_min_fraction")
+"""Stage settings that change how the output is decoded from the fitted hair map, not the fit."""
+
 
 def stage1_config(settings: dict | None = None, device: str | None = None, seed: int | None = None) -> Stage1Config:
     """Default Stage 1 config with ``settings`` overrides, then ``device`` / ``seed`` when given."""
@@ -120,10 +123,12 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
 
 
 def _signature(cfg: Stage2Config, data: FitData, z: torch.Tensor, mask: torch.Tensor) -> str:
-    """Hash of everything that defines a Stage 2 run (for resuming only a matching checkpoint)."""
+    """Hash of everything that defines a Stage 2 fit (for resuming only a matching checkpoint). The
+    settings that only decode the output (:data:`DECODING_ONLY`) are left out, so changing them
+    resumes a finished fit and decodes it again."""
     d = config_to_dict(cfg)
-    d.pop("checkpoint_every", None)
-    d.pop("device", None)
+    for key in ("checkpoint_every", "device", *DECODING_ONLY):
+        d.pop(key, None)
     h = hashlib.sha256(json.dumps({"cfg": d, "frames": data.frames}, sort_keys=True).encode())
     for t in (z, mask, data.mask, data.cam_from_head):
         h.update(np.ascontiguousarray(t.detach().cpu().numpy(), np.float32).tobytes())
