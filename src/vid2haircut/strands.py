@@ -18,7 +18,8 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "scatter_strands", "vary_lengths", "cut_strands"]
+__all__ = ["StrandSet", "resample_polylines", "resample_polyline_list", "polyline_tangents", "scatter_strands",
+           "vary_lengths", "cut_strands"]
 
 
 def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:

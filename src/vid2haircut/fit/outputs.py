@@ -31,9 +31,7 @@ from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 
 __all__ = ["write_hairmap", "load_hairmap", "write_strands", "dense_strands", "stage_strands", "push_out_of_head",
-           "extend_map",
-           "render_panel", "write_renders",
-           "write_loss_curve", "save_torch", "load_torch"]
+           "extend_map", "render_panel", "write_renders", "write_loss_curve", "save_torch", "load_torch"]
 
 
 def write_hairmap(path: str | Path, z: torch.Tensor, mask: torch.Tensor, codec_fingerprint: str,

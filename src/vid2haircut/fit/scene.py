@@ -21,8 +21,8 @@ from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "ZMap", "length_step_gain",
-           "z_optimizer"]
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "ZMap",
+           "length_step_gain", "z_optimizer"]
 
 
 class GuideLayout(NamedTuple):
