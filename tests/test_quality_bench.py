@@ -176,3 +176,41 @@ def test_gap_profile_projects_tips_into_the_reference_view():
     inside, on_mask, row = gap.tip_rows(tips, cam, pose, mask)
     assert inside == 0.75 and on_mask == 1.0 and row == 70.0
     assert gap.tip_rows(tips[3:], cam, pose, mask)[0] == 0.0
+
+
+def test_redecode_writes_what_the_stage_wrote(tmp_path):
+    """benchmarks/redecode.py decodes a fitted run as the stage did (its keyframes, size, seed), so
+    with the same settings the strands are bit for bit the stage's, and a new carving setting is
+    applied and recorded."""
+    import shutil
+
+    from vid2haircut.fit.pipeline import run_stage1, run_stage2
+    from vid2haircut.fit.toy import toy_problem, write_toy_files
+    from vid2haircut.io.strand_formats import load_strands
+
+    redecode = _bench("redecode")
+    name = "toy_1000"
+    work = tmp_path / "work"
+    files = write_toy_files(toy_problem(size=40, n_frames=3, map_res=12, k=12), work / "data", subject=name)
+    (work / "front").mkdir(parents=True)
+    shutil.move(str(files["keyframes"].parent), str(work / "front" / name))
+    seq = redecode.quality.seq_files(work, name)
+    common = (seq["root"], name, seq["keyframes"], seq["head"], seq["targets"])
+    small = {"render": {"n_points": 16, "size": 40}, "n_dense": 200}
+    s1, s2 = work / "runs" / name / "stage1", work / "runs" / name / "stage2"
+    run_stage1(*common, s1, codec_path=work / "front" / name / "codec.npz", progress=False,
+               settings={**small, "iterations": 2, "map_res": 12})
+    run_stage2(*common, s1, s2, progress=False,
+               settings={**small, "iterations": 3, "canonical_steps": 1, "ramp_steps": 1})
+    same = {"length_spread": 0.04, "tip_scatter": 0.0, "carve_tolerance": 1.0, "carve_min_fraction": 0.5}
+    dst = tmp_path / "dst"
+    done = redecode.redecode_sequence((str(work), str(dst), name, same, ()))
+    assert len(done) == 2
+    for run in ("stage1", "stage2"):
+        a = load_strands(work / "runs" / name / run / "strands.npz").points
+        assert np.array_equal(load_strands(dst / "runs" / name / run / "strands.npz").points, a)
+    off = {**same, "carve_tolerance": 0.0}
+    redecode.redecode_sequence((str(work), str(tmp_path / "off"), name, off, ("stage2",)))
+    rec = json.loads((tmp_path / "off" / "runs" / name / "stage2" / "stage2.json").read_text())
+    assert rec["carved_fraction"] == 0.0 and rec["config"]["carve_tolerance"] == 0.0
+    assert not (tmp_path / "off" / "runs" / name / "stage1").exists()
