@@ -1,4 +1,5 @@
-"""Silhouette carving of the dense output (vid2haircut.fit.carve) and strand cutting."""
+"""The target silhouettes' distance field: the outside loss (vid2haircut.fit.losses.outside_loss),
+silhouette carving of the dense output (vid2haircut.fit.carve) and strand cutting."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ import pytest
 import torch
 
 from vid2haircut.fit.carve import carve_lengths, carve_strands, silhouette_excess
+from vid2haircut.fit.data import downsample_targets
+from vid2haircut.fit.losses import outside_loss
 from vid2haircut.strands import cut_strands
 
 
@@ -79,3 +82,47 @@ def test_carve_strands_on_fit_data():
     assert (lens(cut.points) <= lens(long) + 1e-6).all()
     with pytest.raises(ValueError, match="tolerance"):
         carve_strands(pts, toy.data, -1.0)
+
+
+def test_outside_loss_counts_only_shown_points_beyond_the_silhouette():
+    K, cfh, outside = _camera()
+    # column u = 15.5 + 100 x (z = 1): x = 0.05 -> u = 20.5, 5 px beyond column 15
+    pts = torch.tensor([[[[0.05, 0.0, 0.0], [-0.05, 0.0, 0.0]]]])            # (B=1,N=1,P=2,3)
+    loss = outside_loss(pts, K, cfh, outside, None, tolerance=0.5)
+    assert float(loss) == pytest.approx((5.5 - 0.5) / 2, abs=1e-4)          # the point on the mask pays 0
+    # hidden behind a head surface nearer than the point: pays nothing; a surface behind it: pays
+    near_head = torch.full_like(outside, 0.5)
+    far_head = torch.full_like(outside, 2.0)
+    assert float(outside_loss(pts, K, cfh, outside, near_head)) == 0.0
+    assert float(outside_loss(pts, K, cfh, outside, far_head)) == pytest.approx(float(loss))
+    # outside the image (u > W - 1) or behind the camera: nothing
+    off = torch.tensor([[[[0.5, 0.0, 0.0], [0.0, 0.0, -1.5]]]])
+    assert float(outside_loss(off, K, cfh, outside, None)) == 0.0
+
+
+def test_outside_loss_gradient_points_towards_the_silhouette():
+    K, cfh, outside = _camera()
+    pts = torch.tensor([[[[0.052, 0.01, 0.0]]]], requires_grad=True)
+    outside_loss(pts, K, cfh, outside, None).backward()
+    g = pts.grad[0, 0, 0]
+    assert float(g[0]) > 0 and abs(float(g[1])) < 1e-6           # descending moves the point left, onto the mask
+    # finite differences of the bilinear field
+    eps = 1e-4
+    with torch.no_grad():
+        f = (lambda dx: float(outside_loss(pts + torch.tensor([dx, 0.0, 0.0]), K, cfh, outside, None)))
+        assert float(g[0]) == pytest.approx((f(eps) - f(-eps)) / (2 * eps), rel=1e-2)
+
+
+def test_downsample_targets_outside_distance():
+    h = w = 16
+    mask = np.zeros((h, w), np.float32)
+    mask[:, :8] = 1.0
+    t = {"mask": mask, "angle": np.zeros((h, w), np.float32), "confidence": np.ones((h, w), np.float32),
+         "depth": np.zeros((h, w), np.float32), "depth_valid": np.ones((h, w), bool)}
+    lo = downsample_targets(t, 8, 8)
+    out = lo["outside"]
+    assert out.shape == (8, 8) and (out[:, :4] == 0).all()
+    # full-resolution distances 1..8 of columns 8..15, averaged in pairs and halved: 0.75, 1.75, ...
+    assert np.allclose(out[0, 4:], [0.75, 1.75, 2.75, 3.75], atol=0.05)
+    t["mask"] = np.zeros((h, w), np.float32)                      # an empty mask constrains nothing
+    assert (downsample_targets(t, 8, 8)["outside"] == 0).all()

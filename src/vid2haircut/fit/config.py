@@ -306,17 +306,16 @@ class Stage2Config:
     mask_threshold: float = 0.5
     """Texels whose baldness-mask value reaches this carry a guide strand."""
     n_dense: int = 10000
-    """Dense strands decoded for the output."""
+    """As :attr:`Stage1Config.n_dense` (this and the next four only decode the output: changing them
+    re-decodes a finished fit, see :data:`vid2haircut.fit.pipeline.DECODING_ONLY`)."""
     length_spread: float = LENGTH_SPREAD
-    """Relative spread of the dense strands' lengths (see :data:`LENGTH_SPREAD`; 0 = even ends)."""
+    """As :attr:`Stage1Config.length_spread`."""
     tip_scatter: float = 0.0
-    """Per-axis fan-out of the dense strands' tips, metres (see :data:`TIP_SCATTER_MEASURED`; 0 = off)."""
+    """As :attr:`Stage1Config.tip_scatter`."""
     carve_tolerance: float = CARVE_TOLERANCE
-    """Silhouette carving of the dense strands with this stage's keyframes, fitting pixels (see
-    :data:`CARVE_TOLERANCE`; 0 = off)."""
+    """As :attr:`Stage1Config.carve_tolerance` (Stage 2 carves with all its keyframes)."""
     carve_min_fraction: float = 0.5
-    """A carved strand is cut before its first point outside the silhouettes only when at least this
-    fraction of the points from there to the tip are outside too (:func:`vid2haircut.fit.carve.carve_lengths`)."""
+    """As :attr:`Stage1Config.carve_min_fraction`."""
     checkpoint_every: int = 50
     """Write a resumable checkpoint every this many steps (0 = only at the end)."""
     device: str = "cpu"
