@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from vid2haircut.fit.carve import carve_strands
 from vid2haircut.fit.config import LossWeights
 from vid2haircut.fit.trainer import History
 from vid2haircut.io.atomic import atomic_path, write_image, write_json, write_npz
@@ -146,8 +147,6 @@ def stage_strands(z: torch.Tensor, mask: torch.Tensor, data: Any, codec: Any, cf
                           length_spread=cfg.length_spread, tip_scatter=cfg.tip_scatter)
     if cfg.carve_tolerance <= 0:
         return dense, 0.0
-    from vid2haircut.fit.carve import carve_strands
-
     carved = carve_strands(dense.points, data, cfg.carve_tolerance, cfg.carve_min_fraction)
     return StrandSet(carved.points, dict(dense.attributes), head_model=dense.head_model), carved.cut_fraction
 
