@@ -6,7 +6,8 @@ makes a new work folder that links the old one's synthesised data and front-stag
 each run's hair map, codec and record (the record's ``config`` gets the new decoding settings), and
 decodes every run's dense strands again exactly as the stage does
 (:func:`vid2haircut.fit.outputs.stage_strands`: the run's seed, and for carving the run's own
-keyframes and fitting size). The prior and oracle rows are left out: ``quality.py`` remakes them with the present code.
+keyframes and fitting size). The prior and oracle rows are left out: ``quality.py`` remakes them
+with the present code.
 Then ``quality.py --work NEW ...`` with the old variants scores everything and prints the tables.
 
     python benchmarks/redecode.py --src results/benchmarks/quality_v13 --dst results/benchmarks/quality_v14 \
@@ -26,7 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import quality  # noqa: E402  (the benchmark's sequence layout)
 
-from vid2haircut.fit.config import CARVE_TOLERANCE, LENGTH_SPREAD  # noqa: E402
+from vid2haircut.fit.config import CARVE_TOLERANCE, LENGTH_SPREAD, Stage2Config  # noqa: E402
 
 RECORDS = ("stage1.json", "stage2.json")
 
@@ -34,6 +35,9 @@ RECORDS = ("stage1.json", "stage2.json")
 def redecode_sequence(job: tuple) -> list[str]:
     """Re-decode every fitted run of one sequence into ``dst``; returns the run folders written."""
     src, dst, name, decoding, only = job
+    import torch
+
+    torch.set_num_threads(1)                           # --jobs processes share the cores
     from vid2haircut.fit.data import load_fit_data
     from vid2haircut.fit.outputs import load_hairmap, stage_strands
     from vid2haircut.fit.pipeline import stage1_config, stage2_config
@@ -87,7 +91,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tip-scatter", type=float, default=0.0, help="per-axis spread of the strand tips, metres")
     p.add_argument("--carve-tolerance", type=float, default=CARVE_TOLERANCE,
                    help="silhouette carving tolerance, fitting pixels (0 = off)")
-    p.add_argument("--carve-min-fraction", type=float, default=0.5, help="see Stage2Config.carve_min_fraction")
+    p.add_argument("--carve-min-fraction", type=float, default=Stage2Config.carve_min_fraction,
+                   help="see Stage2Config.carve_min_fraction")
     p.add_argument("--sequences", default=None, help="comma-separated names (default: every sequence in --src)")
     p.add_argument("--runs", default=None, help="comma-separated run (variant) names (default: every fitted run)")
     p.add_argument("--jobs", type=int, default=1)

@@ -30,6 +30,7 @@ import torch
 from torch import Tensor
 
 from vid2haircut.fit.data import FitData
+from vid2haircut.fit.losses import shown_pixels
 from vid2haircut.render.project import project_points
 from vid2haircut.strands import cut_strands
 
@@ -77,12 +78,8 @@ def silhouette_excess(points: Tensor, K: Tensor, cam_from_head: Tensor, outside:
     for s in range(0, flat.shape[0], chunk):
         x = flat[s:s + chunk].to(outside)
         uv, z = project_points(x[None].expand(m, -1, -1), K.to(x), cam_from_head.to(x), near)
-        ui, vi = uv[..., 0].round().long(), uv[..., 1].round().long()
-        ok = (z > near) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
-        pix = (vi.clamp(0, h - 1) * w + ui.clamp(0, w - 1))
+        ok, pix = shown_pixels(uv, z, head_depth, w, h, near)
         d = torch.gather(outside.reshape(m, -1), 1, pix)
-        if head_depth is not None:
-            ok &= z < torch.gather(head_depth.reshape(m, -1).to(z), 1, pix)
         out[s:s + chunk] = torch.where(ok, d, torch.zeros_like(d)).amax(0)
     return out.reshape(n, p)
 

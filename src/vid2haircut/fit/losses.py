@@ -43,7 +43,8 @@ from vid2haircut.render.project import project_points
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
            "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss",
-           "quantile_normalize", "anchor_loss", "bend_loss", "outside_loss"]
+           "quantile_normalize", "anchor_loss", "bend_loss", "outside_loss",
+           "shown_pixels"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -108,6 +109,28 @@ def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, targ
     return torch.stack(terms).mean() if terms else pred_depth.sum() * 0.0
 
 
+@torch.no_grad()
+def shown_pixels(uv: Tensor, z: Tensor, head_depth: Tensor | None, width: int, height: int,
+                 near: float = 1e-2) -> tuple[Tensor, Tensor]:
+    """Which projected points a keyframe shows, and their nearest pixels.
+
+    Args:
+        uv: (B,Q,2) pixel coordinates (pixel centres at integers); z: (B,Q) camera depth.
+        head_depth: (B,H,W) camera z of the head surface (+inf off it) or None.
+        width, height: image size; near: points closer to the camera are not shown.
+
+    Returns:
+        shown: (B,Q) bool, in front of the camera, on a pixel of the image and not behind the head
+        there; pix: (B,Q) int64 flat index of the nearest pixel (clamped into the image).
+    """
+    ui, vi = uv[..., 0].round().long(), uv[..., 1].round().long()
+    shown = (z > near) & (ui >= 0) & (ui < width) & (vi >= 0) & (vi < height)
+    pix = vi.clamp(0, height - 1) * width + ui.clamp(0, width - 1)
+    if head_depth is not None:
+        shown &= z < torch.gather(head_depth.reshape(z.shape[0], -1).to(z), 1, pix)
+    return shown, pix
+
+
 def outside_loss(points: Tensor, K: Tensor, cam_from_head: Tensor, outside: Tensor, head_depth: Tensor | None,
                  tolerance: float = 0.5, near: float = 1e-2) -> Tensor:
     """Mean distance (pixels) beyond ``tolerance`` from the target silhouette of the projected points.
@@ -129,12 +152,7 @@ def outside_loss(points: Tensor, K: Tensor, cam_from_head: Tensor, outside: Tens
     h, w = outside.shape[-2:]
     uv, z = project_points(points.reshape(b, n * p, 3), K, cam_from_head, near)
     u, v = uv[..., 0], uv[..., 1]
-    valid = (z > near) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-    if head_depth is not None:
-        with torch.no_grad():
-            ui = u.round().clamp(0, w - 1).long()
-            vi = v.round().clamp(0, h - 1).long()
-            valid = valid & (z < torch.gather(head_depth.reshape(b, -1), 1, vi * w + ui))
+    valid, _ = shown_pixels(uv, z, head_depth, w, h, near)
     grid = torch.stack([2.0 * u / max(w - 1, 1) - 1.0, 2.0 * v / max(h - 1, 1) - 1.0], -1)[:, None]
     d = F.grid_sample(outside[:, None].to(grid), grid, mode="bilinear", align_corners=True,
                       padding_mode="border")[:, 0, 0]                         # (B,N*P)
