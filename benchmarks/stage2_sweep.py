@@ -14,7 +14,7 @@ front-stage outputs, Stage 1 hair maps; no images or ground truth) into a small 
 travel, ``--run-only --tar FILE`` runs there and bundles the hair maps of the runs made by that call
 (about 0.35 MB each), and back here
 ``--untar FILE`` unpacks them; scoring then decodes each hair map to dense strands exactly as the
-stage does (:func:`vid2haircut.fit.outputs.dense_strands`, same seed) before comparing with the
+stage does (:func:`vid2haircut.fit.outputs.stage_strands`: same seed, keyframes and carving) before comparing with the
 ground truth.
 """
 
@@ -69,9 +69,12 @@ def pack(work: Path, dest: Path, names: list[str]) -> None:
 
 
 def decoded(work: Path, name: str, setting: str) -> Path:
-    """Dense strands of one sweep run (decoded from its hair map when only that came back)."""
+    """Dense strands of one sweep run (decoded from its hair map when only that came back), exactly as
+    the stage decodes them (:func:`vid2haircut.fit.outputs.stage_strands`: the run's seed, decoding
+    settings, keyframes and fitting size, so carving sees what the run saw)."""
     from vid2haircut.fit.data import load_fit_data
-    from vid2haircut.fit.outputs import dense_strands, load_hairmap
+    from vid2haircut.fit.outputs import load_hairmap, stage_strands
+    from vid2haircut.fit.pipeline import stage2_config
     from vid2haircut.io.strand_formats import save_strands
     from vid2haircut.prior.codec import StrandCodec
 
@@ -79,14 +82,12 @@ def decoded(work: Path, name: str, setting: str) -> Path:
     path = out / "strands.npz"
     if not path.is_file():
         seq = quality.seq_files(work, name)
-        data = load_fit_data(seq["root"], name, seq["keyframes"], seq["head"], seq["targets"], n_keyframes=1,
-                             occlude_head=False)
+        cfg = stage2_config(json.loads((out / "stage2.json").read_text())["config"])
+        data = load_fit_data(seq["root"], name, seq["keyframes"], seq["head"], seq["targets"], size=cfg.render.size,
+                             n_keyframes=cfg.n_keyframes, occlude_head=cfg.render.occlude_head)
         z, mask, _ = load_hairmap(out / "hairmap.npz")
-        codec = StrandCodec.load(work / "runs" / name / "stage1" / "codec.npz")
-        cfg = json.loads((out / "stage2.json").read_text())["config"]
-        save_strands(path, dense_strands(z, mask, data.head, codec, 10000, int(cfg["seed"]), data.head_model,
-                                         length_spread=float(cfg.get("length_spread", 0.0)),
-                                         tip_scatter=float(cfg.get("tip_scatter", 0.0))))
+        dense, _ = stage_strands(z, mask, data, StrandCodec.load(work / "runs" / name / "stage1" / "codec.npz"), cfg)
+        save_strands(path, dense)
     return path
 
 

@@ -181,7 +181,8 @@ def test_gap_profile_projects_tips_into_the_reference_view():
 def test_redecode_writes_what_the_stage_wrote(tmp_path):
     """benchmarks/redecode.py decodes a fitted run as the stage did (its keyframes, size, seed), so
     with the same settings the strands are bit for bit the stage's, and a new carving setting is
-    applied and recorded."""
+    applied and recorded. benchmarks/stage2_sweep.py, scoring a run of which only the hair map and
+    record came back from another machine, decodes the same strands too."""
     import shutil
 
     from vid2haircut.fit.pipeline import run_stage1, run_stage2
@@ -214,3 +215,9 @@ def test_redecode_writes_what_the_stage_wrote(tmp_path):
     rec = json.loads((tmp_path / "off" / "runs" / name / "stage2" / "stage2.json").read_text())
     assert rec["carved_fraction"] == 0.0 and rec["config"]["carve_tolerance"] == 0.0
     assert not (tmp_path / "off" / "runs" / name / "stage1").exists()
+    sweep = work / "sweep" / name / "back"
+    sweep.mkdir(parents=True)
+    for f in _bench("stage2_sweep").KEEP:
+        shutil.copy2(s2 / f, sweep / f)
+    path = _bench("stage2_sweep").decoded(work, name, "back")
+    assert np.array_equal(load_strands(path).points, load_strands(s2 / "strands.npz").points)
