@@ -335,6 +335,28 @@ def test_bend_loss_counts_only_bends_tighter_than_the_radius():
     assert torch.isfinite(s.grad).all() and float(s.grad.abs().max()) == 0.0
 
 
+def test_gravity_loss_charges_only_rising_segments_and_pulls_them_down():
+    from vid2haircut.fit.losses import gravity_loss
+
+    t = torch.linspace(0, 0.1, 20, dtype=torch.float64)
+    zeros = torch.zeros_like(t)
+    hanging = torch.stack([zeros, -t, zeros], -1)                       # straight down
+    level = torch.stack([t, zeros, zeros], -1)                          # along x
+    wave = torch.stack([zeros, -t, 0.01 * torch.sin(t * 200)], -1)      # a wave that never climbs
+    for pts in (hanging, level, wave):
+        assert float(gravity_loss(pts)) == 0.0
+    up30 = torch.stack([t * math.cos(math.pi / 6), t * math.sin(math.pi / 6), zeros], -1)
+    assert float(gravity_loss(up30)) == pytest.approx(0.5, rel=1e-12)    # the sine of the climb
+    both = torch.stack([hanging, up30])                                 # the mean over all segments
+    assert float(gravity_loss(both)) == pytest.approx(0.25, rel=1e-12)
+    assert float(gravity_loss(up30[..., [1, 0, 2]], up=0)) == pytest.approx(0.5, rel=1e-12)
+    x = up30.clone().requires_grad_(True)
+    gravity_loss(x).backward()
+    with torch.no_grad():
+        after = gravity_loss(x - 1e-3 * x.grad)
+    assert float(after) < 0.5 and float(x.grad[-1, 1]) > 0.0             # the tip is pulled down
+
+
 def test_lr_decay_factor_is_a_half_cosine_over_the_last_steps():
     f = [lr_decay_factor(s, 10, 4, 0.1) for s in range(10)]
     assert f[:6] == [1.0] * 6                          # constant until the last 4 steps

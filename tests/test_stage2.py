@@ -337,6 +337,16 @@ def test_silhouette_opacity_thins_only_the_silhouette(toy):
         render_frames(pts, toy.data, frames, apply_overrides(model.cfg.render, {"silhouette_opacity": 0.0}))
 
 
+def test_gravity_term_is_in_the_loss_only_when_weighted(toy):
+    z0, m0 = _start(toy)
+    assert "gravity" not in Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(weights={"gravity": 0.1}), z0, m0)
+    losses = model.get_loss_dict(0)
+    from vid2haircut.fit.losses import gravity_loss
+    expect = gravity_loss(model.canonical()[:, model.layout.render_index])
+    assert float(losses["gravity"]) == pytest.approx(float(expect), rel=1e-12)
+
+
 def test_outside_term_pulls_stray_strands_and_respects_the_gate(toy):
     z0, m0 = _start(toy)
     assert "outside" not in Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)

@@ -87,6 +87,13 @@ class LossWeights:
     weight 10 0.113 / 0.266 (short 0.529 -> 0.406 rad, bangs 0.154 -> 0.147 in Chamfer_pts);
     weight 10 with a 10 mm radius 0.115 / 0.265; weight 100 with 5 mm 0.170 (short and bangs
     collapse)."""
+    gravity: float = 0.0
+    """Stage 2: rising guide segments pay their climb, mean relu(u . up) over segments
+    (:func:`vid2haircut.fit.losses.gravity_loss`; method.md lists gravity 0.1 without a definition).
+    Off: measured with ``benchmarks/stage2_sweep.py`` (first quality draw, seed 0, short and bangs
+    styles, the two whose fits climb: the term is 0.043 and 0.013 on their Stage 2 dense strands,
+    0.009 and 0.002 on the ground truth), Chamfer_pts 1e-4 m^2 0.0342 / 0.0455 off, 0.0350 / 0.0469 at 0.1,
+    0.0351 / 0.0476 at 1; Chamfer_angle a little lower (0.3856 / 0.1816 at 0.1 against 0.3881 / 0.1832)."""
     canonical: float = 1.0e4
     """Offsets of the reference (canonical) keyframe pushed to zero, mean |dx|^2 in m^2 (method.md: 1e4)."""
     motion: float = 1.0e-6

@@ -27,6 +27,7 @@ Geometry terms act on strands in the canonical head frame:
   information flows from observed into unobserved regions, never back).
 - :func:`anchor_loss`: guide points that no keyframe shows stay near their starting positions.
 - :func:`bend_loss`: strands bend no tighter than a minimum radius (only the excess turn counts).
+- :func:`gravity_loss`: hair hangs: segments that rise against gravity pay their rise per unit length.
 - :func:`motion_loss`: mean squared deformation offset.
 """
 
@@ -43,7 +44,7 @@ from vid2haircut.render.project import project_points
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
            "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss",
-           "quantile_normalize", "anchor_loss", "bend_loss", "outside_loss",
+           "quantile_normalize", "anchor_loss", "bend_loss", "gravity_loss", "outside_loss",
            "shown_pixels"]
 
 
@@ -357,6 +358,26 @@ def bend_loss(points: Tensor, min_radius: float) -> Tensor:
     turn = (u[..., 1:, :] - u[..., :-1, :]).square().sum(-1)
     allowed = (0.5 * (length[..., 1:] + length[..., :-1]) / min_radius).square()
     return torch.relu(turn - allowed).mean()
+
+
+def gravity_loss(points: Tensor, up: int = 1) -> Tensor:
+    """Hair hangs: the mean over segments of relu(u . up), u the unit segment direction.
+
+    Gravity pulls hanging hair down; a segment that rises is held up only by the head or by the hair
+    beneath it. Segments running level or down cost nothing, so waves, curls into the head and hair
+    lying on the scalp are left alone; only the rising part of a strand pays, by the sine of its
+    climb. (method.md lists a gravity term of weight 0.1 in Vid2Haircut's loss without defining it;
+    this is our definition.)
+
+    Args:
+        points: (...,P,3) strand points (P >= 2) in the canonical head frame, metres.
+        up: index of the head frame's up axis (1: +y up, the canonical head frame).
+
+    Returns:
+        Scalar in [0, 1].
+    """
+    d = points[..., 1:, :] - points[..., :-1, :]
+    return torch.relu(d[..., up] / d.norm(dim=-1).clamp_min(1e-9)).mean()
 
 
 def motion_loss(offsets: Tensor) -> Tensor:

@@ -26,8 +26,8 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import (anchor_loss, bend_loss, motion_loss, pca_consistency_loss, penetration_loss,
-                                    smoothness_losses, tip_height_loss)
+from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
+                                    penetration_loss, smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
@@ -220,6 +220,8 @@ class Stage2Model(nn.Module):
                                            ~self.points_seen.any(0))
         if cfg.weights.bend > 0.0:
             losses["bend"] = bend_loss(canon, cfg.min_bend_radius)
+        if cfg.weights.gravity > 0.0:
+            losses["gravity"] = gravity_loss(canon[:, self.layout.render_index])
         if cfg.switches.use_pca_consistency:
             losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
         if scale > 0.0:
