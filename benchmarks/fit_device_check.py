@@ -17,7 +17,8 @@ import time
 
 import torch
 
-from vid2haircut.fit.config import Stage1Config, Stage2Config, apply_overrides
+from vid2haircut.fit.config import Stage1Config, Stage2Config
+from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.scene import image_losses, render_frames
 from vid2haircut.fit.stage1 import fit_stage1
 from vid2haircut.fit.stage2 import Stage2Model, fit_stage2

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.fit.config import LossWeights, Stage1Config, Stage2Config, apply_overrides, load_settings
+from vid2haircut.fit.config import LossWeights, Stage1Config, Stage2Config
+from vid2haircut.fit.settings import apply_overrides, load_settings
 from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
 from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
                                     robust, silhouette_loss, smoothness_losses, texel_graph,

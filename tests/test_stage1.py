@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.fit.config import Stage1Config, apply_overrides
+from vid2haircut.fit.config import Stage1Config
+from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.stage1 import Stage1Model, fit_stage1, initial_hairmap, prior_view_input
 from vid2haircut.fit.toy import toy_problem, write_toy_files
 

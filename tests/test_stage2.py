@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.fit.config import Stage2Config, apply_overrides
+from vid2haircut.fit.config import Stage2Config
+from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.deform import DeformationField, DeformConfig, deformation_weight
 from vid2haircut.fit.scene import image_losses, render_frames
 from vid2haircut.fit.stage2 import Stage2Model, checkpoint_state, fit_stage2, harmonic_extension

@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vid2haircut.fit.config import load_settings
+    from vid2haircut.fit.settings import load_settings
     from vid2haircut.fit.pipeline import run_stage1
 
     run_stage1(args.dataset_root, args.subject, args.keyframes, args.head, args.targets, args.out,

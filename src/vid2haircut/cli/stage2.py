@@ -17,7 +17,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from vid2haircut.fit.config import load_settings
+    from vid2haircut.fit.settings import load_settings
     from vid2haircut.fit.pipeline import run_stage2
 
     run_stage2(args.dataset_root, args.subject, args.keyframes, args.head, args.targets, args.stage1_dir, args.out,

@@ -1,6 +1,7 @@
 """Fitting stages: Stage 1 (single view, Im2Haircut baseline) and Stage 2 (Vid2Haircut joint refinement).
 
-- :mod:`.config`: dataclass configs (loss weights, schedule, ablation switches) and ``--settings`` overrides.
+- :mod:`.config`: dataclass configs (loss weights, schedule, ablation switches); :mod:`.settings`:
+  ``--settings`` overrides applied to them.
 - :mod:`.data`: keyframes, head poses, targets and cameras as tensors at the fitting resolution.
 - :mod:`.losses`: the loss terms; :mod:`.scene`: guides of a map, rendering, image terms.
 - :mod:`.visibility`: visibility-aware gradient masking; :mod:`.deform`: the deformation MLP.
@@ -10,7 +11,8 @@
   :mod:`.toy`: a tiny known problem for tests.
 """
 
-from vid2haircut.fit.config import LossWeights, RenderSettings, Stage1Config, Stage2Config, Switches, apply_overrides
+from vid2haircut.fit.config import LossWeights, RenderSettings, Stage1Config, Stage2Config, Switches
+from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.data import FitData, load_fit_data, make_fit_data
 from vid2haircut.fit.stage1 import FitResult, fit_stage1
 from vid2haircut.fit.stage2 import fit_stage2

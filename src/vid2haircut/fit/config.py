@@ -3,20 +3,14 @@ under every field).
 
 Loss weights default to the published Vid2Haircut values (``shared/docs/method.md``) where our losses
 have the same units; the rest are tuned on ``benchmarks/quality.py`` and say so. Every setting can
-be overridden from a JSON object (``--settings``) with :func:`apply_overrides`, e.g.
+be overridden from a JSON object (``--settings``) with :func:`vid2haircut.fit.settings.apply_overrides`, e.g.
 ``{"switches": {"use_deformation": false}}`` or the dotted form ``{"switches.use_deformation": false}``,
 so each ablation is one override.
 """
 
 from __future__ import annotations
 
-import copy
-import dataclasses
-import json
-import math
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
 
 
 # Dense-output decoding shared by both stages (vid2haircut.fit.outputs.dense_strands).
@@ -329,78 +323,3 @@ class Stage2Config:
     """Torch device."""
     seed: int = 0
     """Seed of everything random."""
-
-
-# Settings whose value must lie in [low, high): checked when overrides are applied, so a bad value
-# stops a run before it fits rather than when it writes its output.
-_RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve_tolerance": (0.0, 1.0e3),
-           "carve_min_fraction": (0.0, math.nextafter(1.0, 2.0))}
-
-
-def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
-    name = path[0]
-    if not dataclasses.is_dataclass(obj) or name not in {f.name for f in dataclasses.fields(obj)}:
-        known = sorted(f.name for f in dataclasses.fields(obj)) if dataclasses.is_dataclass(obj) else []
-        raise ValueError(f"settings: unknown key {full!r} (known here: {known})")
-    cur = getattr(obj, name)
-    if len(path) > 1:
-        _set(cur, path[1:], value, full)
-    elif dataclasses.is_dataclass(cur):
-        if not isinstance(value, dict):
-            raise ValueError(f"settings: {full!r} must be an object, got {value!r}")
-        for k, v in value.items():
-            _set(cur, [k], v, f"{full}.{k}")
-    else:
-        if isinstance(cur, bool) and not isinstance(value, bool):
-            raise ValueError(f"settings: {full!r} must be true or false, got {value!r}")
-        if isinstance(cur, (int, float)) and not isinstance(cur, bool):
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"settings: {full!r} must be a number, got {value!r}")
-            if isinstance(cur, int) and not float(value).is_integer():
-                raise ValueError(f"settings: {full!r} must be an integer, got {value!r}")
-            value = type(cur)(value)
-            low, high = _RANGES.get(name, (-math.inf, math.inf))
-            if not low <= value < high:
-                raise ValueError(f"settings: {full!r} must be in [{low:g}, {high:g}), got {value!r}")
-        setattr(obj, name, value)
-
-
-def apply_overrides(cfg: Any, overrides: dict | None) -> Any:
-    """A deep copy of the config dataclass ``cfg`` with ``overrides`` applied.
-
-    Args:
-        cfg: a config dataclass (e.g. :class:`Stage2Config`).
-        overrides: nested ``{"weights": {"depth": 0.1}}`` or dotted ``{"weights.depth": 0.1}`` keys.
-
-    Raises:
-        ValueError naming the key when it is unknown or has the wrong type.
-    """
-    out = copy.deepcopy(cfg)
-    for key, value in (overrides or {}).items():
-        _set(out, str(key).split("."), value, str(key))
-    return out
-
-
-def load_settings(text_or_path: str | None) -> dict:
-    """Parse ``--settings``: a JSON object given inline or as the path of a JSON file ({} for None)."""
-    if not text_or_path:
-        return {}
-    p = Path(text_or_path)
-    if not text_or_path.lstrip().startswith("{") and p.suffix == ".json":
-        if not p.is_file():
-            raise FileNotFoundError(f"{p}: settings file not found")
-        text, where = p.read_text(), str(p)
-    else:
-        text, where = text_or_path, "--settings"
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{where}: not valid JSON ({e})") from None
-    if not isinstance(obj, dict):
-        raise ValueError(f"{where}: settings must be a JSON object, got {type(obj).__name__}")
-    return obj
-
-
-def config_to_dict(cfg: Any) -> dict:
-    """JSON-able dict of a config dataclass."""
-    return dataclasses.asdict(cfg)

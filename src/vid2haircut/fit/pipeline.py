@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from vid2haircut.fit.config import Stage1Config, Stage2Config, apply_overrides, config_to_dict
+from vid2haircut.fit.config import Stage1Config, Stage2Config
+from vid2haircut.fit.settings import apply_overrides, config_to_dict
 from vid2haircut.fit.data import FitData, load_fit_data
 from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, save_torch, stage_strands,
                                      write_hairmap, write_loss_curve, write_record, write_renders, write_strands)
