@@ -14,8 +14,8 @@ front-stage outputs, Stage 1 hair maps; no images or ground truth) into a small 
 travel, ``--run-only --tar FILE`` runs there and bundles the hair maps of the runs made by that call
 (about 0.35 MB each), and back here
 ``--untar FILE`` unpacks them; scoring then decodes each hair map to dense strands exactly as the
-stage does (:func:`vid2haircut.fit.outputs.stage_strands`: same seed, keyframes and carving) before comparing with the
-ground truth.
+stage does (:func:`vid2haircut.fit.outputs.stage_strands`: same seed, keyframes and carving) before
+comparing with the ground truth.
 """
 
 from __future__ import annotations

@@ -364,10 +364,10 @@ def gravity_loss(points: Tensor, up: int = 1) -> Tensor:
     """Hair hangs: the mean over segments of relu(u . up), u the unit segment direction.
 
     Gravity pulls hanging hair down; a segment that rises is held up only by the head or by the hair
-    beneath it. Segments running level or down cost nothing, so waves, curls into the head and hair
-    lying on the scalp are left alone; only the rising part of a strand pays, by the sine of its
-    climb. (method.md lists a gravity term of weight 0.1 in Vid2Haircut's loss without defining it;
-    this is our definition.)
+    beneath it. Segments running level or down cost nothing (hanging hair, waves that keep
+    descending); the rising part of a strand pays by the sine of its climb, whether it is a curl
+    looping back up or hair combed up over the scalp. (method.md lists a gravity term of weight 0.1
+    in Vid2Haircut's loss without defining it; this is our definition.)
 
     Args:
         points: (...,P,3) strand points (P >= 2) in the canonical head frame, metres.
