@@ -65,6 +65,35 @@ def test_depth_invariant_to_scale_and_offset():
     assert float(depth_loss(pred, small, tgt_n, small)) == 0.0
 
 
+def test_affine_depth_alignment_ignores_scale_shift_and_where_the_masks_differ():
+    g = torch.Generator().manual_seed(1)
+    z = 0.7 + 0.05 * torch.rand(2, 12, 12, generator=g, dtype=torch.float64)
+    valid = torch.ones(2, 12, 12, dtype=torch.bool)
+    target = (z - 0.71) / 0.04                         # relative depth made over a larger region
+    part = valid.clone()
+    part[:, :, 8:] = False                             # the render covers only part of it
+    assert float(depth_loss(z, part, target, valid, align="affine")) == pytest.approx(0.0, abs=1e-12)
+    assert float(depth_loss(z, part, target, valid)) > 0.05                   # the quantiles see the region
+    noisy = target + 0.05 * torch.randn(2, 12, 12, generator=g, dtype=torch.float64)
+    a = depth_loss(z, valid, noisy, valid, align="affine")
+    assert float(depth_loss(3.0 * z + 1.0, valid, noisy, valid, align="affine")) == pytest.approx(float(a), rel=1e-9)
+    # a reversed depth order is not fitted by a negative scale: it pays as with the quantiles
+    rev = 1.5 - z
+    assert float(depth_loss(rev, valid, target, valid, align="affine")) == pytest.approx(
+        float(depth_loss(rev, valid, target, valid)), rel=1e-12)
+    assert float(depth_loss(rev, valid, target, valid, align="affine")) > 0.3
+    x = z.clone().requires_grad_(True)                 # the gradient matches finite differences
+    depth_loss(x, valid, noisy, valid, align="affine").backward()
+    i = (0, 3, 4)
+    e = torch.zeros_like(z)
+    e[i] = 1e-7
+    fd = (depth_loss(z + e, valid, noisy, valid, align="affine") - depth_loss(z - e, valid, noisy, valid,
+                                                                              align="affine")) / 2e-7
+    assert float(x.grad[i]) == pytest.approx(float(fd), rel=1e-4, abs=1e-9)
+    with pytest.raises(ValueError, match="depth alignment"):
+        depth_loss(z, valid, target, valid, align="median")
+
+
 def test_penetration_counts_only_inside():
     sdf = (lambda p: p.norm(dim=-1) - 0.1)       # sphere of 10 cm
     inside = torch.tensor([[0.0, 0.0, 0.05]])

@@ -348,6 +348,15 @@ def test_gravity_term_is_in_the_loss_only_when_weighted(toy):
     assert float(losses["gravity"]) == pytest.approx(float(expect), rel=1e-12)
 
 
+def test_depth_alignment_reaches_the_depth_term_and_is_checked(toy):
+    z0, m0 = _start(toy)
+    terms = {a: float(Stage2Model(toy.data, toy.codec, _cfg(depth_align=a), z0, m0).get_loss_dict(0)["depth"])
+             for a in ("quantile", "affine")}
+    assert terms["quantile"] != terms["affine"]
+    with pytest.raises(ValueError, match="depth_align"):
+        Stage2Model(toy.data, toy.codec, _cfg(depth_align="median"), z0, m0)
+
+
 def test_outside_term_pulls_stray_strands_and_respects_the_gate(toy):
     z0, m0 = _start(toy)
     assert "outside" not in Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)

@@ -282,6 +282,10 @@ class Stage2Config:
     together; 0 = plain)."""
     min_bend_radius: float = 0.003
     """Tightest bend (metres) that :attr:`LossWeights.bend` leaves alone."""
+    depth_align: str = "quantile"
+    """How the depth term brings the rendered depth to the targets' relative scale, per keyframe
+    (:func:`vid2haircut.fit.losses.depth_loss`): "quantile" (5% / 95% quantiles to 0 / 1, as the
+    targets are made) or "affine" (the least-squares scale and shift)."""
     visibility_unit: str = "strand"
     """What the visibility gate (``switches.use_visibility``) lets frame t update: "strand" (default),
     every segment of the strands with a visible segment in t; "segment", only the segments visible in

@@ -44,7 +44,7 @@ from vid2haircut.render.project import project_points
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "penetration_loss", "TexelGraph", "texel_graph",
            "smoothness_losses", "tip_height_loss", "robust", "pca_consistency_loss", "motion_loss",
-           "quantile_normalize", "anchor_loss", "bend_loss", "gravity_loss", "outside_loss",
+           "quantile_normalize", "DEPTH_ALIGNMENTS", "anchor_loss", "bend_loss", "gravity_loss", "outside_loss",
            "shown_pixels"]
 
 
@@ -88,25 +88,45 @@ def quantile_normalize(depth: Tensor, region: Tensor, q: tuple[float, float] = (
     return (depth - qs[0]) / (qs[1] - qs[0]).clamp_min(1e-6)
 
 
+DEPTH_ALIGNMENTS = ("quantile", "affine")
+
+
 def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, target_valid: Tensor,
-               min_pixels: int = 16) -> Tensor:
+               min_pixels: int = 16, align: str = "quantile") -> Tensor:
     """L1 of relative depth.
 
     Args:
         pred_depth: (B,H,W) rendered camera z (metres); pred_mask: (B,H,W) bool.
         target_depth: (B,H,W) relative target depth (0 near, 1 far); target_valid: (B,H,W) bool.
         min_pixels: frames whose common region is smaller are skipped.
+        align: how the rendered depth is brought to the target's relative scale, per frame, in the
+            common region: "quantile" maps its 5% / 95% quantiles to 0 / 1 (as the targets are
+            made, though over their own mask); "affine" takes the scale and shift that fit the
+            target best in least squares (a monocular depth's scale-and-shift invariance; it does
+            not depend on where the two masks differ), or the quantiles where that scale is not
+            positive (a reversed depth order must still pay).
 
     Returns:
         Scalar mean over frames (with enough pixels) of the mean |d - d_hat| in the common region.
     """
+    if align not in DEPTH_ALIGNMENTS:
+        raise ValueError(f"depth alignment must be one of {DEPTH_ALIGNMENTS}, got {align!r}")
     terms = []
     for b in range(pred_depth.shape[0]):
         region = pred_mask[b] & target_valid[b]
         if int(region.sum()) < min_pixels:
             continue
-        d = quantile_normalize(pred_depth[b], region)
-        terms.append((d - target_depth[b])[region].abs().mean())
+        d = None
+        if align == "affine":
+            x = pred_depth[b][region]
+            t = target_depth[b][region].to(x)
+            xc = x - x.mean()
+            scale = (xc * (t - t.mean())).sum() / xc.square().sum().clamp_min(1e-12)
+            if float(scale) > 0.0:                     # a reversed depth order falls back to the quantiles
+                d = scale * xc + t.mean()
+        if d is None:
+            d = quantile_normalize(pred_depth[b], region)[region]
+        terms.append((d - target_depth[b][region]).abs().mean())
     return torch.stack(terms).mean() if terms else pred_depth.sum() * 0.0
 
 

@@ -104,14 +104,16 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     return out
 
 
-def image_losses(out: StrandRender, data: FitData, frames: Tensor) -> dict[str, Tensor]:
-    """Silhouette, direction and depth terms of rendered keyframes ``frames`` (B,) -> dict of scalars."""
+def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: str = "quantile") -> dict[str, Tensor]:
+    """Silhouette, direction and depth terms of rendered keyframes ``frames`` (B,) -> dict of scalars
+    (``depth_align``: see :func:`~vid2haircut.fit.losses.depth_loss`)."""
     fr = frames.to(data.mask.device)
     mask_t = data.mask[fr]
     weight = data.confidence[fr] * (mask_t > 0.5)
     return {"silhouette": silhouette_loss(out.silhouette, mask_t),
             "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
-            "depth": depth_loss(out.depth, out.mask.detach(), data.depth[fr], data.depth_valid[fr])}
+            "depth": depth_loss(out.depth, out.mask.detach(), data.depth[fr], data.depth_valid[fr],
+                                align=depth_align)}
 
 
 def outside_term(points: Tensor, data: FitData, frames: Tensor, tolerance: float) -> Tensor:

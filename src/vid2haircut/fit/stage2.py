@@ -26,8 +26,8 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
-                                    penetration_loss, smoothness_losses, tip_height_loss)
+from vid2haircut.fit.losses import (DEPTH_ALIGNMENTS, anchor_loss, bend_loss, gravity_loss, motion_loss,
+                                    pca_consistency_loss, penetration_loss, smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
@@ -91,6 +91,8 @@ class Stage2Model(nn.Module):
         self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
                        .to(dev) if cfg.switches.use_deformation else None)
         check_visibility_unit(cfg.visibility_unit)
+        if cfg.depth_align not in DEPTH_ALIGNMENTS:
+            raise ValueError(f"settings: depth_align must be one of {DEPTH_ALIGNMENTS}, got {cfg.depth_align!r}")
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
         pr = int(self.layout.render_index.numel())
@@ -200,7 +202,7 @@ class Stage2Model(nn.Module):
             self.points_seen[frames] = point_visibility(out.visibility)
             self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
-        losses = image_losses(out, self.data, frames)
+        losses = image_losses(out, self.data, frames, cfg.depth_align)
         if cfg.weights.outside > 0.0:
             losses["outside"] = outside_term(moved, self.data, frames, cfg.outside_tolerance)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
