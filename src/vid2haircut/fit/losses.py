@@ -122,7 +122,7 @@ def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, targ
             t = target_depth[b][region].to(x)
             xc = x - x.mean()
             scale = (xc * (t - t.mean())).sum() / xc.square().sum().clamp_min(1e-12)
-            if float(scale) > 0.0:                     # a reversed depth order falls back to the quantiles
+            if float(scale.detach()) > 0.0:            # a reversed depth order falls back to the quantiles
                 d = scale * xc + t.mean()
         if d is None:
             d = quantile_normalize(pred_depth[b], region)[region]
