@@ -1,4 +1,4 @@
-"""The target silhouettes' distance field: the outside loss (vid2haircut.fit.losses.outside_loss),
+"""The target silhouettes' distance field: the outside loss (vid2haircut.fit.image_terms.outside_loss),
 silhouette carving of the dense output (vid2haircut.fit.carve) and strand cutting."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import torch
 
 from vid2haircut.fit.carve import carve_lengths, carve_strands, silhouette_excess
 from vid2haircut.fit.data import downsample_targets
-from vid2haircut.fit.losses import outside_loss
+from vid2haircut.fit.image_terms import outside_loss
 from vid2haircut.strands import cut_strands
 
 

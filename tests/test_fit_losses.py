@@ -11,9 +11,9 @@ import torch
 from vid2haircut.fit.config import LossWeights, Stage1Config, Stage2Config
 from vid2haircut.fit.settings import apply_overrides, load_settings
 from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
-from vid2haircut.fit.losses import (depth_loss, direction_loss, motion_loss, pca_consistency_loss, penetration_loss,
-                                    robust, silhouette_loss, smoothness_losses, texel_graph,
-                                    tip_height_loss)
+from vid2haircut.fit.image_terms import depth_loss, direction_loss, silhouette_loss
+from vid2haircut.fit.losses import (motion_loss, pca_consistency_loss, penetration_loss, robust, smoothness_losses,
+                                    texel_graph, tip_height_loss)
 from vid2haircut.fit.trainer import History, lr_decay_factor, weighted_total
 from vid2haircut.fit.visibility import VisibilityGate, point_visibility
 

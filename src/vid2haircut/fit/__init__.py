@@ -3,7 +3,8 @@
 - :mod:`.config`: dataclass configs (loss weights, schedule, ablation switches); :mod:`.settings`:
   ``--settings`` overrides applied to them.
 - :mod:`.data`: keyframes, head poses, targets and cameras as tensors at the fitting resolution.
-- :mod:`.losses`: the loss terms; :mod:`.scene`: guides of a map, rendering, image terms.
+- :mod:`.image_terms`, :mod:`.losses`: the image and geometry loss terms; :mod:`.scene`: guides of a
+  map, rendering, the image terms of a render.
 - :mod:`.visibility`: visibility-aware gradient masking; :mod:`.deform`: the deformation MLP.
 - :mod:`.trainer`: sums the weighted loss dict and steps; :mod:`.optim`: Adam that moves weakly
   constrained texels slowly; :mod:`.stage1`, :mod:`.stage2`: the models.

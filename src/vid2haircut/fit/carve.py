@@ -30,7 +30,7 @@ import torch
 from torch import Tensor
 
 from vid2haircut.fit.data import FitData
-from vid2haircut.fit.losses import shown_pixels
+from vid2haircut.fit.image_terms import shown_pixels
 from vid2haircut.render.project import project_points
 from vid2haircut.strands import cut_strands
 

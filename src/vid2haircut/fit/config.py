@@ -41,7 +41,7 @@ class LossWeights:
     """L1 between quantile-normalised rendered and target depth inside both masks (Vid2Haircut: 0.1)."""
     outside: float = 0.0
     """Strand points a keyframe shows outside its target silhouette pay their distance to it, in
-    fitting pixels beyond ``outside_tolerance`` (:func:`vid2haircut.fit.losses.outside_loss`; not
+    fitting pixels beyond ``outside_tolerance`` (:func:`vid2haircut.fit.image_terms.outside_loss`; not
     published)."""
     penetration: float = 1.0e4
     """mean(relu(-sdf)) of the strand points, metres (Vid2Haircut: 1e4)."""
@@ -284,7 +284,7 @@ class Stage2Config:
     """Tightest bend (metres) that :attr:`LossWeights.bend` leaves alone."""
     depth_align: str = "quantile"
     """How the depth term brings the rendered depth to the targets' relative scale, per keyframe
-    (:func:`vid2haircut.fit.losses.depth_loss`): "quantile" (5% / 95% quantiles to 0 / 1, as the
+    (:func:`vid2haircut.fit.image_terms.depth_loss`): "quantile" (5% / 95% quantiles to 0 / 1, as the
     targets are made) or "affine" (the least-squares scale and shift)."""
     visibility_unit: str = "strand"
     """What the visibility gate (``switches.use_visibility``) lets frame t update: "strand" (default),

@@ -112,7 +112,7 @@ def downsample_targets(t: dict[str, np.ndarray], width: int, height: int) -> dic
     ``depth_valid`` (H0,W0)) -> ``mask``, ``direction`` (H,W,2), ``confidence``, ``depth``,
     ``depth_valid`` at (height, width) (see the module docstring), and ``outside`` (H,W): the distance,
     in output pixels, from each output pixel to the nearest full-resolution mask pixel (> 0.5), 0 on
-    the mask (the silhouette term's distance field, :func:`vid2haircut.fit.losses.outside_loss`)."""
+    the mask (the silhouette term's distance field, :func:`vid2haircut.fit.image_terms.outside_loss`)."""
     import cv2
 
     def area(a: np.ndarray) -> np.ndarray:

@@ -196,7 +196,7 @@ def render_panel(target: dict[str, np.ndarray], render: dict[str, np.ndarray], s
 
 def write_renders(out_dir: str | Path, out: Any, data: Any, frames: torch.Tensor) -> list[Path]:
     """Write ``renders/frame_<t:05d>.png`` for the rendered keyframes ``frames`` (B,) of ``out``."""
-    from vid2haircut.fit.losses import quantile_normalize
+    from vid2haircut.fit.image_terms import quantile_normalize
 
     paths = []
     for b, f in enumerate(frames.tolist()):

@@ -15,8 +15,8 @@ from torch import Tensor, nn
 
 from vid2haircut.fit.config import RenderSettings
 from vid2haircut.fit.data import FitData
-from vid2haircut.fit.losses import (TexelGraph, depth_loss, direction_loss, outside_loss, silhouette_loss,
-                                   texel_graph)
+from vid2haircut.fit.image_terms import depth_loss, direction_loss, outside_loss, silhouette_loss
+from vid2haircut.fit.losses import TexelGraph, texel_graph
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
@@ -106,7 +106,7 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
 
 def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: str = "quantile") -> dict[str, Tensor]:
     """Silhouette, direction and depth terms of rendered keyframes ``frames`` (B,) -> dict of scalars
-    (``depth_align``: see :func:`~vid2haircut.fit.losses.depth_loss`)."""
+    (``depth_align``: see :func:`~vid2haircut.fit.image_terms.depth_loss`)."""
     fr = frames.to(data.mask.device)
     mask_t = data.mask[fr]
     weight = data.confidence[fr] * (mask_t > 0.5)
@@ -117,7 +117,7 @@ def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: 
 
 
 def outside_term(points: Tensor, data: FitData, frames: Tensor, tolerance: float) -> Tensor:
-    """:func:`~vid2haircut.fit.losses.outside_loss` of (B,N,P,3) canonical strands in keyframes ``frames`` (B,).
+    """:func:`~vid2haircut.fit.image_terms.outside_loss` of (B,N,P,3) canonical strands in keyframes ``frames`` (B,).
 
     Raises:
         ValueError when ``data`` has no distance field (``FitData.outside``).

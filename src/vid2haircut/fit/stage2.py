@@ -26,8 +26,9 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.losses import (DEPTH_ALIGNMENTS, anchor_loss, bend_loss, gravity_loss, motion_loss,
-                                    pca_consistency_loss, penetration_loss, smoothness_losses, tip_height_loss)
+from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
+from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
+                                    penetration_loss, smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
