@@ -12,6 +12,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
+
 __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 
 
@@ -19,6 +21,8 @@ __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 # stops a run before it fits rather than when it writes its output.
 _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve_tolerance": (0.0, 1.0e3),
            "carve_min_fraction": (0.0, math.nextafter(1.0, 2.0))}
+# Settings that name one of a few modes, checked the same way.
+_CHOICES = {"depth_align": DEPTH_ALIGNMENTS}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
@@ -46,6 +50,8 @@ def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
             low, high = _RANGES.get(name, (-math.inf, math.inf))
             if not low <= value < high:
                 raise ValueError(f"settings: {full!r} must be in [{low:g}, {high:g}), got {value!r}")
+        if name in _CHOICES and value not in _CHOICES[name]:
+            raise ValueError(f"settings: {full!r} must be one of {_CHOICES[name]}, got {value!r}")
         setattr(obj, name, value)
 
 

@@ -26,7 +26,6 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig
-from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
                                     penetration_loss, smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
@@ -92,8 +91,6 @@ class Stage2Model(nn.Module):
         self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
                        .to(dev) if cfg.switches.use_deformation else None)
         check_visibility_unit(cfg.visibility_unit)
-        if cfg.depth_align not in DEPTH_ALIGNMENTS:
-            raise ValueError(f"settings: depth_align must be one of {DEPTH_ALIGNMENTS}, got {cfg.depth_align!r}")
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
         pr = int(self.layout.render_index.numel())
