@@ -10,6 +10,10 @@ full-resolution camera): the share of tips inside the image, the share of those 
 mask, and their median image row (pixels from the top), for the ground truth and each variant.
 A third table gives each variant's strand length against the ground truth's (each strand matched
 to the ground-truth strand with the nearest scalp uv), mean by the root's head region, in cm.
+A fourth table splits the same term by the ground-truth point's head region (front / side / back,
+:func:`vid2haircut.evaluate.metrics.region_of`), above or below ``UPPER_Y_M`` in the head frame, and
+whether the point lies farther from the head surface than its nearest predicted point ("outside":
+the prediction's hair is too flat there) or not ("inside").
 
     .venv/bin/python benchmarks/gap_profile.py --work results/benchmarks/quality_v12 \\
         --sequences shoulder_straight_1001,wavy_1004
@@ -29,22 +33,40 @@ import quality  # noqa: E402  (the benchmark's sequence layout)
 
 SDF_BINS_M = (0.0, 0.01, 0.02, 0.03, 0.05, np.inf)
 N_POINTS = 100
+UPPER_Y_M = -0.04
+"""Head-frame height (metres) that splits the fourth table's upper and lower parts (about ear level)."""
 
 
-def profile(gt_points: np.ndarray, gt_sdf: np.ndarray, pred_points: np.ndarray) -> tuple[float, list, list]:
+def profile(gt_sdf: np.ndarray, d2: np.ndarray) -> tuple[float, list, list]:
     """(gt->pred term, parts by head distance, parts by strand quarter), all in 1e-4 m^2.
 
     Args:
-        gt_points: (S*100,3) ground-truth points, strand by strand, root first. gt_sdf: (S*100,)
-            their signed distance from the head surface, metres. pred_points: (M,3).
+        gt_sdf: (S*100,) signed distance from the head surface of the ground-truth points (strand by
+            strand, root first), metres. d2: (S*100,) their squared distance to the nearest predicted point.
     """
-    d2 = cKDTree(pred_points).query(gt_points, workers=-1)[0] ** 2
     n = len(d2)
     by_sdf = np.digitize(np.maximum(gt_sdf, 0.0), SDF_BINS_M[1:-1])
     pos = np.arange(n) % N_POINTS
     sdf_parts = [float(d2[by_sdf == i].sum() / n * 1e4) for i in range(len(SDF_BINS_M) - 1)]
     arc_parts = [float(d2[(pos >= a) & (pos < a + N_POINTS // 4)].sum() / n * 1e4) for a in range(0, N_POINTS, N_POINTS // 4)]
     return float(d2.mean() * 1e4), sdf_parts, arc_parts
+
+
+def shell_split(gt_points: np.ndarray, gt_sdf: np.ndarray, d2: np.ndarray, nearest_sdf: np.ndarray) -> list[float]:
+    """The gt->pred term (1e-4 m^2) in 12 parts that add up to it: for each head region (front, side,
+    back) and height (upper, lower: above / below :data:`UPPER_Y_M`), the part from ground-truth points
+    farther from the head than their nearest predicted point ("outside") and the rest ("inside").
+
+    Args:
+        gt_points: (S,3); gt_sdf: (S,) their head signed distance; d2: (S,) their squared distance to
+            the nearest predicted point; nearest_sdf: (S,) that point's head signed distance.
+    """
+    from vid2haircut.evaluate.metrics import REGIONS, region_of
+
+    n = len(d2)
+    reg, upper, outside = region_of(gt_points), gt_points[:, 1] > UPPER_Y_M, gt_sdf > nearest_sdf
+    return [float(d2[(reg == r) & (upper == u) & (outside == o)].sum() / n * 1e4)
+            for r in range(len(REGIONS)) for u in (True, False) for o in (True, False)]
 
 
 def tip_rows(tips: np.ndarray, camera, world_from_head: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
@@ -84,13 +106,14 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     work = Path(args.work)
     variants = args.variants.split(",")
-    gaps, tips, lengths = [], [], []
+    gaps, tips, lengths, shells = [], [], [], []
     for name in args.sequences.split(","):
         seq = quality.seq_files(work, name)
         gt_set = load_strands(seq["gt"])
         gt = oriented_points(gt_set, N_POINTS).points
         fit, extra = load_head_fit(seq["head"])
-        sdf = np.asarray(resolve_head(fit.head_model, fit.shape).sdf_np(gt)).ravel()
+        head = resolve_head(fit.head_model, fit.shape)
+        sdf = np.asarray(head.sdf_np(gt)).ravel()
         ref = load_keyframes(seq["keyframes"])
         cam = load_fit_camera(seq["root"], name, extra.get("serial") or ref.serial)
         pose = fit.world_from_head[[int(t) for t in fit.frames].index(ref.reference)]
@@ -103,15 +126,21 @@ def main(argv: list[str] | None = None) -> int:
             if pred is not None:
                 err = length_errors(gt_set, pred)
                 lengths.append(f"{name} | {v} | {' / '.join(f'{x:+.1f}' for x in err)}")
-                total, by_sdf, by_arc = profile(gt, sdf, pts)
+                dist, nearest = cKDTree(pts).query(gt, workers=-1)
+                total, by_sdf, by_arc = profile(sdf, dist ** 2)
                 gaps.append(f"{name} | {v} | {total:.4f} | {' / '.join(f'{x:.4f}' for x in by_sdf)} | "
                             f"{' / '.join(f'{x:.4f}' for x in by_arc)}")
+                parts = shell_split(gt, sdf, dist ** 2, np.asarray(head.sdf_np(pts[nearest])).ravel())
+                shells.append(f"{name} | {v} | " + " | ".join(f"{a:.4f} / {b:.4f}" for a, b in zip(parts[::2], parts[1::2])))
     print("sequence | variant | gt->pred | head distance 0-1 / 1-2 / 2-3 / 3-5 / >5 cm | strand quarters 1-4")
     print("\n".join(gaps))
     print("\nsequence | strands | tips in the reference image | of those on the target mask | median tip row (px)")
     print("\n".join(tips))
     print("\nsequence | variant | strand length minus the ground truth's, cm, roots front / side / back")
     print("\n".join(lengths))
+    print("\nsequence | variant | gt->pred outside / inside: front upper | front lower | side upper | side lower | "
+          "back upper | back lower")
+    print("\n".join(shells))
     return 0
 
 

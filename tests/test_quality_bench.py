@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
@@ -133,14 +134,31 @@ def test_gap_profile_parts_add_up_and_find_the_tips():
     t = np.linspace(0.0, 1.0, gap.N_POINTS)
     gt = np.concatenate([np.stack([np.full_like(t, 0.01 * k), -0.2 * t, np.zeros_like(t)], 1) for k in range(s)])
     sdf = 0.1 * np.tile(t, s)                                # distance from the head grows along each strand
-    total, by_sdf, by_arc = gap.profile(gt, sdf, gt)
+    total, by_sdf, by_arc = gap.profile(sdf, np.zeros(len(gt)))
     assert total == 0.0 and not any(by_sdf) and not any(by_arc)
     short = gt.reshape(s, gap.N_POINTS, 3)[:, :60].reshape(-1, 3)   # the prediction stops at 60% of each strand
-    total, by_sdf, by_arc = gap.profile(gt, sdf, short)
+    total, by_sdf, by_arc = gap.profile(sdf, cKDTree(short).query(gt)[0] ** 2)
     assert total > 0.0
     assert np.isclose(sum(by_sdf), total) and np.isclose(sum(by_arc), total)
     assert by_arc[0] == by_arc[1] == 0.0 and by_arc[3] > by_arc[2] > 0.0
     assert by_sdf[-1] == max(by_sdf)                          # the missing ends lie beyond 5 cm
+
+
+def test_gap_profile_shell_split_finds_hair_that_lies_too_flat():
+    gap = _bench("gap_profile")
+    rng = np.random.default_rng(0)
+    # ground truth: points on a sphere of radius 10 cm around the head centre, all heights and azimuths
+    d = rng.normal(size=(4000, 3))
+    gt = 0.10 * d / np.linalg.norm(d, axis=1, keepdims=True)
+    back = (np.abs(np.degrees(np.arctan2(gt[:, 0], gt[:, 2]))) >= 120.0) & (gt[:, 1] > gap.UPPER_Y_M)
+    # the prediction: the same, but the upper back lies 3 mm closer to the head
+    pred = np.where(back[:, None], gt * 0.097 / 0.10, gt)
+    sdf = np.linalg.norm(gt, axis=1) - 0.09
+    dist, j = cKDTree(pred).query(gt)
+    parts = gap.shell_split(gt, sdf, dist ** 2, np.linalg.norm(pred[j], axis=1) - 0.09)
+    assert len(parts) == 12 and np.isclose(sum(parts), (dist ** 2).mean() * 1e4)
+    # order: (front, side, back) x (upper, lower) x (outside, inside); only "back upper outside" is off
+    assert parts[8] > 0.0 and parts[8] == max(parts) and sum(parts) - parts[8] < 0.05 * parts[8]
 
 
 def test_gap_profile_length_errors_match_strands_by_uv_and_region():

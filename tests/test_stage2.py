@@ -210,6 +210,19 @@ def test_unobserved_guides_follow_the_observed_change(toy):
     model.zmap.delta.grad = None
     model.z.reshape(k, -1)[0, tix[follow]].sum().backward()
     assert float(model.zmap.delta.grad.view(k, -1)[:, tix[~follow]].abs().max()) == 0.0
+    # the anchor holds the followers' own coefficients, not the change they follow: with only the
+    # observed coefficients changed, the followers' hidden points pay nothing and get no pull back
+    held = Stage2Model(toy.data, toy.codec, _cfg(extend_unobserved=True, weights={"anchor": 1.0}), z0, m0)
+    held.get_loss_dict(0)
+    fol = held.follow.clone()
+    hidden = ~held.points_seen.any(0)
+    assert bool((hidden & fol[:, None]).any())                           # followers with hidden points
+    with torch.no_grad():
+        held.zmap.delta.view(k, -1)[0, tix[~fol]] = 1.0 / held.zmap.gain.view(k, -1)[0, tix[~fol]]
+        assert float((held.z.reshape(k, -1)[0, tix[fol]]).abs().min()) > 0.5     # they did move
+    held.zmap.delta.grad = None
+    held.get_loss_dict(1)["anchor"].backward()
+    assert float(held.zmap.delta.grad.view(k, -1)[:, tix[fol]].abs().max()) == 0.0
     # switched off (default): the map is the plain one
     off = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0)
     off.get_loss_dict(0)

@@ -304,10 +304,12 @@ class Stage2Config:
     extend_unobserved: bool = False
     """Guides that no keyframe observes at the start (the back) also move by the harmonic extension,
     over the scalp map, of the change Stage 2 makes to the observed guides (e.g. the sides grow
-    longer, so does the back); see :attr:`vid2haircut.fit.stage2.Stage2Model.z`. Off: measured on
-    ``benchmarks/quality.py`` (seed 0, Chamfer_pts 1e-4 m^2) it lowers the wavy sequence 0.585 ->
-    0.539 (back 0.312 -> 0.266) but raises bangs 0.196 -> 0.213, shoulder-length 0.124 -> 0.156 and
-    bob 0.077 -> 0.080."""
+    longer, so does the back); see :attr:`vid2haircut.fit.stage2.Stage2Model.z`. The anchor holds the
+    followers' own coefficients, not the change they follow. Off: measured on the first draw of
+    ``benchmarks/quality.py`` (table ``quality_v17``, seed 0, Chamfer_pts 1e-4 m^2 / Chamfer_angle) it
+    gives 0.0397 / 0.2369 against 0.0393 / 0.2375, better on the short (0.0239 against 0.0284) and wavy
+    (0.0485 against 0.0530) styles and worse on the other four (``benchmarks/RESULTS.md``, "The hair
+    that no keyframe shows: too flat in the upper back")."""
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0))
     """Loss weights (depth 1 rather than the published 0.1, measured with ``depth_align: affine``;
     see :attr:`depth_align`)."""

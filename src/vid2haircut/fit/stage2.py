@@ -216,7 +216,11 @@ class Stage2Model(nn.Module):
                 losses["smooth_tip"] = tip_height_loss(canon[:, self.layout.render_index], self.layout.graph,
                                                        cfg.smooth_tip_scale)
         if cfg.weights.anchor > 0.0:
-            losses["anchor"] = anchor_loss(canon[:, self.layout.render_index], self.start,
+            # guides that follow the seen change are held at their start plus that change: the anchor
+            # sees their own coefficients only, so it cannot undo the extension
+            held = (decode_layout(self.zmap(), self.layout, self.codec) if bool(self.follow.any())
+                    else canon)
+            losses["anchor"] = anchor_loss(held[:, self.layout.render_index], self.start,
                                            ~self.points_seen.any(0))
         if cfg.weights.bend > 0.0:
             losses["bend"] = bend_loss(canon, cfg.min_bend_radius)
