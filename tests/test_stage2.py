@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from vid2haircut.fit.config import Stage2Config
+from vid2haircut.fit.losses import anchor_loss
 from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.deform import DeformationField, DeformConfig, deformation_weight
 from vid2haircut.fit.scene import image_losses, render_frames
@@ -150,18 +151,7 @@ def test_strand_visibility_unit_updates_whole_seen_strands_only(toy):
 
 
 def test_anchor_holds_only_the_points_no_keyframe_shows(toy):
-    from vid2haircut.fit.losses import anchor_loss
-
-    pts = torch.zeros(2, 3, 3, requires_grad=True)
-    start = torch.zeros(2, 3, 3)
-    start[0, 2, 0] = 0.01
-    hidden = torch.tensor([[False, False, True], [False, False, False]])
-    loss = anchor_loss(pts, start, hidden)
-    loss.backward()
-    assert float(loss.detach()) == pytest.approx(1e-4)                               # (1 cm)^2 over the one hidden point
-    assert torch.count_nonzero(pts.grad.norm(dim=-1)) == 1 and pts.grad[0, 2, 0] < 0
-    assert float(anchor_loss(pts, start, torch.zeros_like(hidden)).detach()) == 0.0
-
+    # the term itself: tests/test_anchor.py
     z0, m0 = _start(toy)
     model = Stage2Model(toy.data, toy.codec, _cfg(weights={"anchor": 1.0}), z0, m0)
     terms = model.get_loss_dict(0)
@@ -172,6 +162,14 @@ def test_anchor_holds_only_the_points_no_keyframe_shows(toy):
         model.zmap.delta.add_(0.5)
     assert float(model.get_loss_dict(1)["anchor"].detach()) > 0.0
     assert "anchor" not in Stage2Model(toy.data, toy.codec, _cfg(weights={"anchor": 0.0}), z0, m0).get_loss_dict(0)
+    # anchor_outward: the directions point away from the head, and a lift of every point is free
+    out = Stage2Model(toy.data, toy.codec, _cfg(weights={"anchor": 1.0}, anchor_outward=True), z0, m0)
+    assert model.outward is None and out.outward.shape == out.start.shape
+    sdf = toy.data.head.sdf
+    assert bool((sdf(out.start + 1e-3 * out.outward) > sdf(out.start)).all())
+    out.get_loss_dict(0)
+    lifted = anchor_loss(out.start + 2e-3 * out.outward, out.start, ~out.points_seen.any(0), out.outward)
+    assert float(lifted) < 1e-12
 
 
 def test_harmonic_extension_interpolates_between_known_nodes():

@@ -299,6 +299,9 @@ class Stage2Config:
     ``benchmarks/quality.py`` (12 sequences, seed 0): Stage 2 Chamfer_pts 0.100 with "strand" against
     0.108 with "segment" (1e-4 m^2); the segment gate lets the direction term of a few frames pull
     short strands off the head (short styles 0.081 / 0.085 against 0.131 / 0.123)."""
+    anchor_outward: bool = False
+    """The anchor (:attr:`LossWeights.anchor`) leaves hidden guide points free to move away from the
+    head (along the head's distance gradient at their start): only inward and sideways moves pay."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

@@ -194,19 +194,25 @@ def pca_consistency_loss(z: Tensor, hair: Tensor, observed: Tensor) -> Tensor:
     return (z - zbar)[:, target].pow(2).mean()
 
 
-def anchor_loss(points: Tensor, start: Tensor, hidden: Tensor) -> Tensor:
+def anchor_loss(points: Tensor, start: Tensor, hidden: Tensor, outward: Tensor | None = None) -> Tensor:
     """Hidden points stay where they started: mean |x - x_start|^2 (m^2) over the hidden points.
 
     Args:
         points: (N,P,3) current canonical guide points. start: (N,P,3) their starting positions.
         hidden: (N,P) bool, points that no keyframe shows.
+        outward: (N,P,3) unit directions away from the head at the starting points, or None: with
+            them, the part of a move along that direction that leads away from the head is free.
 
     Returns:
         Scalar (0 when nothing is hidden).
     """
     if not bool(hidden.any()):
         return points.sum() * 0.0
-    return (points - start).square().sum(-1)[hidden].mean()
+    r = points - start
+    sq = r.square().sum(-1)
+    if outward is not None:
+        sq = sq - torch.relu((r * outward).sum(-1)).square()
+    return sq[hidden].mean()
 
 
 def bend_loss(points: Tensor, min_radius: float) -> Tensor:

@@ -41,6 +41,19 @@ __all__ = ["Stage2Model", "fit_stage2", "harmonic_extension"]
 log = logging.getLogger(__name__)
 
 
+@torch.no_grad()
+def head_normals(points: Tensor, sdf: Callable[[Tensor], Tensor], eps: float = 1e-3) -> Tensor:
+    """(...,3) unit gradients of the head's signed distance at ``points`` (central differences of
+    ``eps`` metres): the direction away from the head."""
+    grads = []
+    for axis in range(3):
+        step = torch.zeros(3, dtype=points.dtype, device=points.device)
+        step[axis] = eps
+        grads.append(sdf(points + step) - sdf(points - step))
+    g = torch.stack(grads, -1)
+    return g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
 def harmonic_extension(pairs: Tensor, n: int, known: Tensor, eps: float = 1e-3) -> Tensor:
     """The matrix that extends values given on ``known`` nodes harmonically to the other nodes.
 
@@ -98,6 +111,8 @@ class Stage2Model(nn.Module):
         self.register_buffer("points_seen", torch.zeros(data.n_frames, n, pr, dtype=torch.bool, device=dev))
         with torch.no_grad():
             self.register_buffer("start", decode_layout(z_init, self.layout, codec)[:, self.layout.render_index])
+        # the anchor leaves hidden points free to move away from the head (cfg.anchor_outward)
+        self.outward = head_normals(self.start, data.head.sdf) if cfg.anchor_outward else None
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
         self.register_buffer("follow", torch.zeros(n, dtype=torch.bool, device=dev))
         self._extension: Tensor | None = None
@@ -221,7 +236,7 @@ class Stage2Model(nn.Module):
             held = (decode_layout(self.zmap(), self.layout, self.codec) if bool(self.follow.any())
                     else canon)
             losses["anchor"] = anchor_loss(held[:, self.layout.render_index], self.start,
-                                           ~self.points_seen.any(0))
+                                           ~self.points_seen.any(0), self.outward)
         if cfg.weights.bend > 0.0:
             losses["bend"] = bend_loss(canon, cfg.min_bend_radius)
         if cfg.weights.gravity > 0.0:
