@@ -301,7 +301,12 @@ class Stage2Config:
     short strands off the head (short styles 0.081 / 0.085 against 0.131 / 0.123)."""
     anchor_outward: bool = False
     """The anchor (:attr:`LossWeights.anchor`) leaves hidden guide points free to move away from the
-    head (along the head's distance gradient at their start): only inward and sideways moves pay."""
+    head (along the head's distance gradient at their start): only inward and sideways moves pay.
+    Off: measured on ``benchmarks/quality.py`` (tables ``quality_v17`` / ``quality_set2_v17``, seed 0,
+    Chamfer_pts 1e-4 m^2) it gives 0.0404 / 0.0383 against 0.0393 / 0.0369, better on the bob and
+    side-parted styles of both draws (bob 0.0297 and 0.0246 against 0.0318 and 0.0282) and worse on
+    the other four (``benchmarks/RESULTS.md``, "The hair that no keyframe shows: too flat in the upper
+    back")."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False
