@@ -14,6 +14,9 @@ A fourth table splits the same term by the ground-truth point's head region (fro
 :func:`vid2haircut.evaluate.metrics.region_of`), above or below ``UPPER_Y_M`` in the head frame, and
 whether the point lies farther from the head surface than its nearest predicted point ("outside":
 the prediction's hair is too flat there) or not ("inside").
+A fifth table gives how far from the head surface the hair above ``UPPER_Y_M`` lies, in the side and
+back regions: the mean and 90th percentile head distance of those points (mm), for the ground truth
+and each variant (how full the hair is, whatever the nearest-point matching).
 
     .venv/bin/python benchmarks/gap_profile.py --work results/benchmarks/quality_v12 \\
         --sequences shoulder_straight_1001,wavy_1004
@@ -69,6 +72,26 @@ def shell_split(gt_points: np.ndarray, gt_sdf: np.ndarray, d2: np.ndarray, neare
             for r in range(len(REGIONS)) for u in (True, False) for o in (True, False)]
 
 
+def standoff(points: np.ndarray, sdf: np.ndarray) -> list[float]:
+    """Mean and 90th percentile head distance (mm) of the points above ``UPPER_Y_M``, side then back.
+
+    Args:
+        points: (S,3) head-frame points; sdf: (S,) their head signed distance, metres.
+
+    Returns:
+        [side mean, side p90, back mean, back p90] (nan where a part holds no point).
+    """
+    from vid2haircut.evaluate.metrics import REGIONS, region_of
+
+    names = [r[0] for r in REGIONS]
+    reg, upper = region_of(points), points[:, 1] > UPPER_Y_M
+    out = []
+    for r in ("side", "back"):
+        d = sdf[(reg == names.index(r)) & upper] * 1e3
+        out += [float(d.mean()), float(np.percentile(d, 90))] if d.size else [float("nan")] * 2
+    return out
+
+
 def tip_rows(tips: np.ndarray, camera, world_from_head: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
     """(share in the image, share of those on ``mask``, median row of those) of (S,3) head-frame tips."""
     uv, z = camera.project(tips @ world_from_head[:3, :3].T + world_from_head[:3, 3])
@@ -106,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     work = Path(args.work)
     variants = args.variants.split(",")
-    gaps, tips, lengths, shells = [], [], [], []
+    gaps, tips, lengths, shells, standoffs = [], [], [], [], []
     for name in args.sequences.split(","):
         seq = quality.seq_files(work, name)
         gt_set = load_strands(seq["gt"])
@@ -121,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
         for v in ["ground truth"] + variants:
             pred = None if v == "ground truth" else load_strands(work / "runs" / name / v / "strands.npz")
             pts = gt if pred is None else oriented_points(pred, N_POINTS).points
+            part = standoff(pts, sdf if pred is None else np.asarray(head.sdf_np(pts)).ravel())
+            standoffs.append(f"{name} | {v} | {part[0]:.1f} / {part[1]:.1f} | {part[2]:.1f} / {part[3]:.1f}")
             inside, on_mask, row = tip_rows(pts[N_POINTS - 1::N_POINTS], cam, pose, mask)
             tips.append(f"{name} | {v} | {inside:.2f} | {on_mask:.2f} | {row:.0f}")
             if pred is not None:
@@ -141,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\nsequence | variant | gt->pred outside / inside: front upper | front lower | side upper | side lower | "
           "back upper | back lower")
     print("\n".join(shells))
+    print("\nsequence | strands | head distance above the split, mm, mean / 90th percentile: side | back")
+    print("\n".join(standoffs))
     return 0
 
 

@@ -17,6 +17,12 @@ standard deviation for a 2-D normal). The pooled value at the tip is the one mea
 square root of the arc-length fraction, as these spreads do; off by default, see
 ``benchmarks/RESULTS.md``, "Uneven ends").
 
+Last, how far the strands of one texel lie from each other in depth: at 10/25/50/75/100% of the
+points, each strand's distance from the head surface minus the texel's median one there, and the
+robust spread of that (how much a dense strand's own depth in the hair could differ from its
+guide's, were it drawn like the corpus; measured and not used, ``benchmarks/RESULTS.md``, "How full
+the hair is").
+
     python benchmarks/length_spread.py [--res 32] [--seeds 8] [--strands 1500]
 """
 
@@ -68,6 +74,16 @@ def lateral_spread(points: np.ndarray, groups: list[np.ndarray], k: int) -> np.n
     return np.concatenate(out) if out else np.zeros(0)
 
 
+def standoff_deviation(sdf: np.ndarray, groups: list[np.ndarray], k: int) -> np.ndarray:
+    """(M,) each grouped strand's head distance at point ``k`` minus its group's median there (metres).
+
+    Args:
+        sdf: (N,P) head signed distance of every strand point; groups: from :func:`texel_groups`.
+    """
+    out = [sdf[idx, k] - np.median(sdf[idx, k]) for idx in groups]
+    return np.concatenate(out) if out else np.zeros(0)
+
+
 def main(argv: list[str] | None = None) -> int:
     from vid2haircut.prior.corpus import build_corpus
     from vid2haircut.synth.hairstyles import FAMILIES
@@ -101,6 +117,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {fam} | " + " | ".join(f"{np.median(d[sel]) * 1e3:.2f}" for d in spreads) + " |")
     print("| **pooled** | " + " | ".join(f"{np.median(d) * 1e3:.2f}" for d in spreads[:-1])
           + f" | **{np.median(spreads[-1]) * 1e3:.2f}** |")
+    from vid2haircut.head import get_head
+
+    sdf = np.asarray(get_head("proxy-v1").sdf_np(points.reshape(-1, 3)), np.float64).reshape(points.shape[:2])
+    shares = (10, 25, 50, 75, 100)
+    dev = [standoff_deviation(sdf, groups, round(q / 100 * (p - 1))) for q in shares]
+    print("\nDistance from the head surface, robust spread in mm of each strand's minus its texel's median,"
+          " at the share of the points:\n")
+    print("| family | " + " | ".join(f"{q}%" for q in shares) + " |")
+    print("|---|" + "---|" * len(shares))
+    for fam in FAMILIES:
+        sel = fam_grouped == fam
+        print(f"| {fam} | " + " | ".join(f"{robust_std(d[sel]) * 1e3:.2f}" for d in dev) + " |")
+    print("| **pooled** | " + " | ".join(f"{robust_std(d) * 1e3:.2f}" for d in dev) + " |")
     return 0
 
 

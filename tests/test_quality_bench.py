@@ -161,6 +161,21 @@ def test_gap_profile_shell_split_finds_hair_that_lies_too_flat():
     assert parts[8] > 0.0 and parts[8] == max(parts) and sum(parts) - parts[8] < 0.05 * parts[8]
 
 
+def test_gap_profile_standoff_sees_a_flat_back():
+    gap = _bench("gap_profile")
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(20000, 3))
+    gt = 0.10 * d / np.linalg.norm(d, axis=1, keepdims=True)       # head surface at 9 cm: 10 mm off it
+    back = np.abs(np.degrees(np.arctan2(gt[:, 0], gt[:, 2]))) >= 120.0
+    flat = np.where(back[:, None], gt * 0.097 / 0.10, gt)           # the back 3 mm closer to the head
+    side_gt, p90_gt, back_gt, _ = gap.standoff(gt, np.linalg.norm(gt, axis=1) - 0.09)
+    side, _, back_mm, back_p90 = gap.standoff(flat, np.linalg.norm(flat, axis=1) - 0.09)
+    assert np.isclose(side_gt, 10.0) and np.isclose(p90_gt, 10.0) and np.isclose(back_gt, 10.0)
+    assert np.isclose(side, 10.0) and np.isclose(back_mm, 7.0) and np.isclose(back_p90, 7.0)
+    low = gt[:, 1] < gap.UPPER_Y_M                                  # only the hair above the split counts
+    assert np.isnan(gap.standoff(gt[low], np.zeros(int(low.sum())))[0])
+
+
 def test_gap_profile_length_errors_match_strands_by_uv_and_region():
     from vid2haircut.strands import StrandSet
 
@@ -239,3 +254,17 @@ def test_redecode_writes_what_the_stage_wrote(tmp_path):
         shutil.copy2(s2 / f, sweep / f)
     path = _bench("stage2_sweep").decoded(work, name, "back")
     assert np.array_equal(load_strands(path).points, load_strands(s2 / "strands.npz").points)
+
+
+def test_length_spread_standoff_deviation_is_per_texel():
+    spread = _bench("length_spread")
+    # two styles' strands in the same texel, and one texel of style 0 elsewhere: depth at 3 points
+    uv = np.array([[0.01, 0.01]] * 4 + [[0.5, 0.5]] * 3)
+    style = np.array([0, 0, 0, 1, 0, 0, 0])
+    groups = spread.texel_groups(uv, style, 32)                     # style 1's lone strand has no group
+    assert sorted(len(g) for g in groups) == [3, 3]
+    sdf = np.array([[0.0, 1.0, 2.0], [0.0, 2.0, 4.0], [0.0, 3.0, 9.0], [0.0, 50.0, 50.0],
+                    [0.0, 5.0, 5.0], [0.0, 5.0, 7.0], [0.0, 5.0, 3.0]]) * 1e-3
+    dev = spread.standoff_deviation(sdf, groups, 2)
+    assert sorted(np.round(dev * 1e3, 6)) == [-2.0, -2.0, 0.0, 0.0, 2.0, 5.0]
+    assert np.allclose(spread.standoff_deviation(sdf, groups, 0), 0.0)

@@ -2,12 +2,16 @@
 
 The point loss decodes the predicted and the target coefficients of a random subset of scalp
 texels with the strand codec and compares the strand points (the roots are shared, so only the
-root-relative offsets matter); it counts only hair-bearing texels of the target.
+root-relative offsets matter); it counts only hair-bearing texels of the target. The optional
+standoff term compares the same points' distances from the head surface: where a view leaves the
+hairstyle open, the point term's best answer is a middle strand, and the middle of strands that wrap
+round the head at different angles lies closer to the head than any of them (hair predicted too
+flat); the standoff term asks for the targets' distance from the head whatever the direction.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -25,12 +29,14 @@ class LossWeights(NamedTuple):
         coef: weight of the coefficient L2.
         mask: weight of the baldness BCE.
         n_texels: texels per view entering the point loss.
+        standoff: weight of the error in distance from the head surface of the same points (in cm).
     """
 
     points: float = 1.0
     coef: float = 0.1
     mask: float = 1.0
     n_texels: int = 128
+    standoff: float = 0.0
 
 
 class LossTerms(NamedTuple):
@@ -41,17 +47,21 @@ class LossTerms(NamedTuple):
         points_cm: mean distance between decoded predicted and target strand points, cm.
         coef: mean squared coefficient error on the valid scalp texels.
         mask_bce: baldness BCE on the valid scalp texels.
+        standoff_cm: mean difference in distance from the head surface of the decoded predicted and
+            target points, cm (0 without ``roots`` and ``sdf``).
     """
 
     total: torch.Tensor
     points_cm: torch.Tensor
     coef: torch.Tensor
     mask_bce: torch.Tensor
+    standoff_cm: torch.Tensor
 
 
 def prior_losses(z: torch.Tensor, logits: torch.Tensor, z_t: torch.Tensor, mask_t: torch.Tensor,
                  valid_index: torch.Tensor, codec: StrandCodec, weights: LossWeights = LossWeights(),
-                 generator: torch.Generator | None = None) -> LossTerms:
+                 generator: torch.Generator | None = None, roots: torch.Tensor | None = None,
+                 sdf: Callable[[torch.Tensor], torch.Tensor] | None = None) -> LossTerms:
     """Loss of predicted maps against target maps.
 
     Args:
@@ -61,6 +71,8 @@ def prior_losses(z: torch.Tensor, logits: torch.Tensor, z_t: torch.Tensor, mask_
         codec: the strand codec (decodes the point loss' texels).
         weights: loss weights and texel count.
         generator: draws the texel subset (on ``z``'s device).
+        roots: (Nv,3) root points of the valid texels (in ``valid_index`` order) and ``sdf`` the
+            head's signed distance ((...,3) -> (...,)): both needed for the standoff term.
 
     Returns:
         :class:`LossTerms`.
@@ -75,10 +87,17 @@ def prior_losses(z: torch.Tensor, logits: torch.Tensor, z_t: torch.Tensor, mask_
     zs = torch.gather(zf, 2, pick[:, None].expand(-1, zf.shape[1], -1)).transpose(1, 2)   # (B,n,K)
     zts = torch.gather(ztf, 2, pick[:, None].expand(-1, zf.shape[1], -1)).transpose(1, 2)
     w = torch.gather(mf, 1, pick)                                                      # (B,n)
-    dist = (codec.decode_offsets(zs) - codec.decode_offsets(zts)).norm(dim=-1).mean(-1)  # (B,n) m
+    off, off_t = codec.decode_offsets(zs), codec.decode_offsets(zts)                  # (B,n,P-1,3)
+    dist = (off - off_t).norm(dim=-1).mean(-1)                                         # (B,n) m
     points = 100.0 * (dist * w).sum() / w.sum().clamp_min(1.0)
     total = weights.points * points + weights.coef * coef + weights.mask * bce
-    return LossTerms(total, points, coef, bce)
+    standoff = torch.zeros((), dtype=points.dtype, device=points.device)
+    if roots is not None and sdf is not None:
+        root = roots[pick][:, :, None]                                                 # (B,n,1,3)
+        gap = (sdf(root + off) - sdf(root + off_t)).abs().mean(-1)                     # (B,n) m
+        standoff = 100.0 * (gap * w).sum() / w.sum().clamp_min(1.0)
+        total = total + weights.standoff * standoff
+    return LossTerms(total, points, coef, bce, standoff)
 
 
 def augment(x: torch.Tensor, shift_px: int, depth_dropout: float, g: torch.Generator) -> torch.Tensor:

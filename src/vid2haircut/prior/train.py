@@ -73,6 +73,9 @@ class TrainConfig:
     """Weight of the coefficient L2."""
     w_mask: float = 1.0
     """Weight of the baldness BCE."""
+    w_standoff: float = 0.0
+    """Weight of the standoff term (cm): the decoded points' distance from the head surface against
+    the targets' (:func:`vid2haircut.prior.losses.prior_losses`; 0 = off, as the bundled prior)."""
     shift_px: int = 3
     """Input augmentation: random shift of up to this many pixels."""
     depth_dropout: float = 0.25
@@ -82,13 +85,16 @@ class TrainConfig:
 
     def loss_weights(self) -> LossWeights:
         """The loss weights of this config."""
-        return LossWeights(self.w_points, self.w_coef, self.w_mask, self.n_texels)
+        return LossWeights(self.w_points, self.w_coef, self.w_mask, self.n_texels, self.w_standoff)
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-able record."""
+        """JSON-able record (without the standoff weight when it is off, so records and fingerprints
+        of priors trained before the term existed stay valid)."""
         d = asdict(self)
         d["model"] = self.model.to_dict()
         d["data"] = self.data.to_dict()
+        if not self.w_standoff:
+            d.pop("w_standoff")
         return json.loads(json.dumps(d))
 
 
@@ -102,13 +108,14 @@ SETTINGS: dict[str, TrainConfig] = {
         steps=150, batch=4, lr=3e-3, warmup=10, n_texels=32, shift_px=2),
     "render": TrainConfig(),
     "render_large": TrainConfig(data=DatasetConfig(train_seeds=tuple(range(24))), steps=5000),
+    "standoff": TrainConfig(data=DatasetConfig(view=ViewConfig(source="photo")), w_standoff=2.0),
 }
 """Named settings of ``train_prior``: ``default`` (the committed prior: training views made like
 the pipeline's targets, i.e. a photo of a dense copy of the style turned into hair coverage, Gabor
 orientation and relative depth, :func:`vid2haircut.prior.views.photo_view`), ``tiny`` (tests),
 ``render`` (the same but trained on direct renders of the strands, :func:`vid2haircut.prior.views.render_view`;
 the default before it, kept to measure the gap) and ``render_large`` (``render`` with 3x the
-hairstyles and 2x the steps). The README's prior and quality sections give their measured effect."""
+hairstyles and 2x the steps) and ``standoff`` (``default`` with the standoff term at weight 2). The README's prior and quality sections give their measured effect."""
 
 
 def config_fingerprint(cfg: TrainConfig, seed: int) -> str:
@@ -141,12 +148,15 @@ def fit_prior_net(data: PriorDataset, codec: StrandCodec, head: Any, cfg: TrainC
     net.set_training_means(data.z.mean(0), data.mask.mean(0))
     net.to(device).train()
     codec = codec.to(device)
-    valid = torch.as_tensor(scalp_grid(head, cfg.model.map_res).index, device=device)
+    grid = scalp_grid(head, cfg.model.map_res)
+    valid = torch.as_tensor(grid.index, device=device)
+    roots = torch.as_tensor(grid.roots.reshape(-1, 3)[grid.index], dtype=torch.float32, device=device)
+    sdf = head.sdf if cfg.w_standoff > 0 else None
     z_all, m_all = data.z.to(device), data.mask.to(device)
     opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     g_cpu = torch.Generator().manual_seed(int(seed) + 1)
     g_dev = torch.Generator(device=device).manual_seed(int(seed) + 2)
-    history, acc = [], np.zeros(4)
+    history, acc = [], np.zeros(len(LossTerms._fields))
     weights = cfg.loss_weights()
     bar = tqdm(range(cfg.steps), desc="prior training", disable=not progress, leave=False)
     for step in bar:
@@ -156,7 +166,7 @@ def fit_prior_net(data: PriorDataset, codec: StrandCodec, head: Any, cfg: TrainC
         for group in opt.param_groups:
             group["lr"] = _lr(step, cfg)
         z, logits = net(x)
-        terms = prior_losses(z, logits, z_all[sty], m_all[sty], valid, codec, weights, g_dev)
+        terms = prior_losses(z, logits, z_all[sty], m_all[sty], valid, codec, weights, g_dev, roots, sdf)
         opt.zero_grad(set_to_none=True)
         terms.total.backward()
         torch.nn.utils.clip_grad_norm_(net.parameters(), cfg.grad_clip)
