@@ -7,6 +7,8 @@ standoff term compares the same points' distances from the head surface: where a
 hairstyle open, the point term's best answer is a middle strand, and the middle of strands that wrap
 round the head at different angles lies closer to the head than any of them (hair predicted too
 flat); the standoff term asks for the targets' distance from the head whatever the direction.
+Measured, it does not fill the fits' thin upper back and makes Stage 1 worse, so the bundled prior
+is trained without it (``benchmarks/RESULTS.md``, "How full the hair is").
 """
 
 from __future__ import annotations
