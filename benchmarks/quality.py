@@ -108,8 +108,10 @@ def seq_files(work: Path, subject: str) -> dict:
 
 
 def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN,
-            head_fill: float = HEAD_FILL, n_keyframes: int = 6, yaw_max: float = YAW_MAX) -> dict:
-    """Synthesise one sequence and run the front stages (cached) with ``n_keyframes`` keyframes."""
+            head_fill: float = HEAD_FILL, n_keyframes: int = 6, yaw_max: float = YAW_MAX,
+            depth_context: bool = False) -> dict:
+    """Synthesise one sequence and run the front stages (cached) with ``n_keyframes`` keyframes
+    (``depth_context``: depth maps and targets that also cover the visible head)."""
     from vid2haircut.front.keyframes import KeyframeConfig
     from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
     from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
@@ -121,13 +123,15 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
         cached = json.loads(meta.read_text())
         for key, have, want in (("sway_gain", cached["motion"].get("sway_gain"), sway_gain),
                                 ("head_fill", cached["config"].get("head_fill"), head_fill),
-                                ("yaw_max_deg", cached["motion"].get("yaw_max_deg"), yaw_max)):
+                                ("yaw_max_deg", cached["motion"].get("yaw_max_deg"), yaw_max),
+                                ("depth_context", float(cached["config"].get("depth_context", False)),
+                                 float(depth_context))):
             if have is None or abs(have - want) > 1e-12:
                 raise SystemExit(f"{meta}: cached sequence has {key} {have}, not {want}; use another --work")
     else:
         synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames,
                                                                sway_gain=sway_gain, head_fill=head_fill,
-                                                               yaw_max_deg=yaw_max),
+                                                               yaw_max_deg=yaw_max, depth_context=depth_context),
                             overwrite=True)
     if not (front / "keyframes.json").is_file():
         run_keyframes(root, subject, "HAIR", front, cfg=KeyframeConfig(num_keyframes=n_keyframes))
@@ -138,7 +142,7 @@ def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float 
     if not (front / "head.npz").is_file():
         run_fit_head(root, subject, "HAIR", front / "keyframes.json", front)
     if not (front / "targets" / "targets.json").is_file():
-        run_targets(root, subject, "HAIR", front / "head.npz", front / "targets")
+        run_targets(root, subject, "HAIR", front / "head.npz", front / "targets", depth_context=depth_context)
     return seq
 
 
@@ -288,6 +292,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--head-fill", type=float, default=HEAD_FILL,
                    help="fraction of the image height that the head fills (SynthConfig.head_fill; smaller "
                         "shows more of long hair, which runs off the bottom of the image at the default)")
+    p.add_argument("--depth-context", action="store_true",
+                   help="depth maps and targets that also cover the visible head (a new --work); fit with "
+                        '--settings \'{"stage1": {"depth_head": true}, "stage2": {"depth_head": true}}\' to use it')
     p.add_argument("--yaw-max", type=float, default=YAW_MAX,
                    help="largest head turn of the synthesised sequences, degrees (SynthConfig.yaw_max_deg; "
                         "larger shows more of the back, which no keyframe sees at the default)")
@@ -323,7 +330,8 @@ def main(argv: list[str] | None = None) -> int:
     results, times, per_seed = {}, {}, {}
     for name in names:
         t0 = time.perf_counter()
-        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes, args.yaw_max)
+        seq = prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes, args.yaw_max,
+                      args.depth_context)
         log.info("%s: data ready in %.0fs", name, time.perf_counter() - t0)
         unseen = unseen_test(seq)
         for v in variants:

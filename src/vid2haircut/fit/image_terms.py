@@ -72,7 +72,7 @@ DEPTH_ALIGNMENTS = ("quantile", "affine")
 
 
 def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, target_valid: Tensor,
-               min_pixels: int = 16, align: str = "quantile") -> Tensor:
+               min_pixels: int = 16, align: str = "quantile", quantile_mask: Tensor | None = None) -> Tensor:
     """L1 of relative depth.
 
     Args:
@@ -85,6 +85,8 @@ def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, targ
             target best in least squares (a monocular depth's scale-and-shift invariance; it does
             not depend on where the two masks differ), or the quantiles where that scale is not
             positive (a reversed depth order must still pay).
+        quantile_mask: (B,H,W) bool, the part of the common region whose quantiles the "quantile"
+            alignment uses (the hair, when the region also holds the head; None: all of it).
 
     Returns:
         Scalar mean over frames (with enough pixels) of the mean |d - d_hat| in the common region.
@@ -105,7 +107,8 @@ def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, targ
             if float(scale.detach()) > 0.0:            # a reversed depth order falls back to the quantiles
                 d = scale * xc + t.mean()
         if d is None:
-            d = quantile_normalize(pred_depth[b], region)[region]
+            q_region = region if quantile_mask is None else region & quantile_mask[b]
+            d = quantile_normalize(pred_depth[b], q_region if int(q_region.sum()) >= 2 else region)[region]
         terms.append((d - target_depth[b][region]).abs().mean())
     return torch.stack(terms).mean() if terms else pred_depth.sum() * 0.0
 

@@ -104,16 +104,32 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     return out
 
 
-def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: str = "quantile") -> dict[str, Tensor]:
+def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: str = "quantile",
+                 depth_head: bool = False) -> dict[str, Tensor]:
     """Silhouette, direction and depth terms of rendered keyframes ``frames`` (B,) -> dict of scalars
-    (``depth_align``: see :func:`~vid2haircut.fit.image_terms.depth_loss`)."""
+    (``depth_align``: see :func:`~vid2haircut.fit.image_terms.depth_loss`).
+
+    With ``depth_head`` (and a head occluder in ``data``), target depth outside the target hair
+    silhouette where no hair is rendered but the fitted head is (the visible head, when the targets
+    carry its depth) is compared with the head's own depth there, in the same per-keyframe
+    alignment as the hair (the quantile alignment takes its quantiles from the hair, as the targets
+    are made): the head, whose shape and pose are known, then fixes the shift and scale of that
+    alignment, and so how far the hair stands off it.
+    """
     fr = frames.to(data.mask.device)
     mask_t = data.mask[fr]
     weight = data.confidence[fr] * (mask_t > 0.5)
+    pred_depth, pred_mask, hair = out.depth, out.mask.detach(), None
+    if depth_head and data.head_depth is not None:
+        hair = pred_mask
+        head = data.head_depth[fr].to(pred_depth)
+        context = data.depth_valid[fr] & (mask_t < 0.5) & torch.isfinite(head) & ~pred_mask
+        pred_depth = torch.where(context, torch.nan_to_num(head, posinf=0.0), pred_depth)
+        pred_mask = pred_mask | context
     return {"silhouette": silhouette_loss(out.silhouette, mask_t),
             "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
-            "depth": depth_loss(out.depth, out.mask.detach(), data.depth[fr], data.depth_valid[fr],
-                                align=depth_align)}
+            "depth": depth_loss(pred_depth, pred_mask, data.depth[fr], data.depth_valid[fr], align=depth_align,
+                                quantile_mask=hair)}
 
 
 def outside_term(points: Tensor, data: FitData, frames: Tensor, tolerance: float) -> Tensor:

@@ -152,7 +152,7 @@ class Stage1Model(nn.Module):
         render_pts = pts[:, self.layout.render_index]
         out = render_frames(render_pts[None], self.data, self.frames, self.cfg.render)
         self.last_render = out
-        losses = image_losses(out, self.data, self.frames)
+        losses = image_losses(out, self.data, self.frames, depth_head=self.cfg.depth_head)
         losses["penetration"] = penetration_loss(pts, self.data.head.sdf, self.cfg.penetration_margin)
         if self.cfg.weights.outside > 0.0:
             losses["outside"] = outside_term(render_pts[None], self.data, self.frames, self.cfg.outside_tolerance)

@@ -215,7 +215,7 @@ class Stage2Model(nn.Module):
             self.points_seen[frames] = point_visibility(out.visibility)
             self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
-        losses = image_losses(out, self.data, frames, cfg.depth_align)
+        losses = image_losses(out, self.data, frames, cfg.depth_align, cfg.depth_head)
         if cfg.weights.outside > 0.0:
             losses["outside"] = outside_term(moved, self.data, frames, cfg.outside_tolerance)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)

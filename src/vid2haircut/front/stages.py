@@ -129,8 +129,9 @@ def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframe
 
 def run_targets(dataset_root: str | Path, subject: str, sequence: str, head_npz: str | Path,
                 out_dir: str | Path, serial: str | None = None, mask_source: str = "auto",
-                depth_source: str = "auto", device: str | None = None) -> dict:
-    """Compute mask / orientation / depth targets of every fitted keyframe and write them."""
+                depth_source: str = "auto", device: str | None = None, depth_context: bool = False) -> dict:
+    """Compute mask / orientation / depth targets of every fitted keyframe and write them
+    (``depth_context``: keep the depth of the visible head too, :class:`DepthConfig`)."""
     from vid2haircut.front.headfile import load_head_fit
     from vid2haircut.front.targets.build import compute_targets, write_targets
     from vid2haircut.front.targets.depth import DepthConfig
@@ -139,7 +140,7 @@ def run_targets(dataset_root: str | Path, subject: str, sequence: str, head_npz:
     seq = _open(dataset_root, subject, sequence, serial or extra["serial"] or None)
     try:
         targets, summary = compute_targets(seq, fit, mask_source=mask_source,
-                                           depth_cfg=DepthConfig(source=depth_source), device=device,
+                                           depth_cfg=DepthConfig(source=depth_source, context=depth_context), device=device,
                                            landmark_embedding=extra["landmark_embedding"])
     finally:
         seq.close()

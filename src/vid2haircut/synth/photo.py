@@ -54,12 +54,16 @@ class PhotoFrame(NamedTuple):
     alpha: (H, W) float32 foreground (head + hair) coverage in [0, 1].
     hair: (H, W) float32 visible-hair coverage in [0, 1] (<= alpha).
     hair_depth: (H, W) float32 mean camera z of the visible hair in the pixel, NaN where none.
+    head: (H, W) float32 coverage of the head that no hair hides, in [0, 1] (None: not rendered).
+    head_depth: (H, W) float32 mean camera z of that visible head in the pixel, NaN where none.
     """
 
     image: np.ndarray
     alpha: np.ndarray
     hair: np.ndarray
     hair_depth: np.ndarray
+    head: np.ndarray | None = None
+    head_depth: np.ndarray | None = None
 
 
 def linear_to_srgb(c: np.ndarray) -> np.ndarray:
@@ -216,6 +220,7 @@ def render_photo(camera: Camera, head, world_from_head: np.ndarray, strands: np.
     img[hit] = _shade_head(frag, head, rot, trans, light, style, hit)
     hair_cov = np.zeros(hh * ww, np.float32)
     hair_z = np.zeros(hh * ww, np.float32)
+    head_vis = fg.copy()
 
     if strands is not None and len(strands):
         pts = np.asarray(strands, dtype=np.float32)
@@ -231,6 +236,7 @@ def render_photo(camera: Camera, head, world_from_head: np.ndarray, strands: np.
         hair_cov[hit] = 1.0
         hair_z[hit] = sf.depth.reshape(-1)[hit]
         fg[hit] = True
+        head_vis[hit] = False
 
     def down(x: np.ndarray) -> np.ndarray:  # (H*s*W*s, C) -> (H, W, C) box filter
         return x.reshape(camera.height, s, camera.width, s, -1).mean(axis=(1, 3), dtype=np.float32)
@@ -239,6 +245,9 @@ def render_photo(camera: Camera, head, world_from_head: np.ndarray, strands: np.
     alpha = down(fg.astype(np.float32))[..., 0]
     hair = down(hair_cov)[..., 0]
     zsum = down(hair_z)[..., 0]
+    head = down(head_vis.astype(np.float32))[..., 0]
+    head_zsum = down(np.where(head_vis, frag.depth.reshape(-1), 0.0).astype(np.float32))[..., 0]
     with np.errstate(invalid="ignore", divide="ignore"):
         hair_depth = np.where(hair > 0, zsum / hair, np.nan).astype(np.float32)
-    return PhotoFrame(image, alpha, hair, hair_depth)
+        head_depth = np.where(head > 0, head_zsum / head, np.nan).astype(np.float32)
+    return PhotoFrame(image, alpha, hair, hair_depth, head, head_depth)

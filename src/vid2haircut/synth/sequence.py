@@ -73,6 +73,9 @@ class SynthConfig:
     """Per-strand log-normal brightness jitter (sigma) on top of the generator's colours."""
     save_frame_points: bool = False
     """Also store the moved hair of every frame as ``frame_points_<t:05d>`` in strands.npz."""
+    depth_context: bool = False
+    """Depth maps also cover the visible head (face, ears, neck), as a monocular depth network's
+    do, not only the hair (:func:`relative_depth`)."""
 
     def motion(self) -> MotionParams:
         return MotionParams(n_frames=self.n_frames, yaw_max_deg=self.yaw_max_deg,
@@ -125,17 +128,25 @@ def jitter_colors(colors: np.ndarray, sigma: float, rng: np.random.Generator) ->
     return np.clip(np.asarray(colors, np.float64) * gain, 0.0, 1.0).astype(np.float32)
 
 
-def relative_depth(hair: np.ndarray, hair_depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def relative_depth(hair: np.ndarray, hair_depth: np.ndarray, head: np.ndarray | None = None,
+                   head_depth: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Coverage (H, W) and camera z (H, W) -> (depth (H, W) float32 in [0, 1], valid (H, W) bool).
 
     As a monocular depth network would give it: larger is farther, min-max normalised over the
-    valid pixels (at least half covered by visible hair), 0 elsewhere. Values are rounded to
-    multiples of 2^-16 (float32 exact) so that the ``.npz`` compresses well.
+    valid pixels (at least half covered by visible hair; with ``head`` and ``head_depth``, the
+    coverage and camera z of the head that no hair hides, also the pixels at least half covered by
+    it), 0 elsewhere. Values are rounded to multiples of 2^-16 (float32 exact) so that the ``.npz``
+    compresses well.
     """
     valid = (hair >= 0.5) & np.isfinite(hair_depth)
+    z_all = np.where(valid, hair_depth, np.nan)
+    if head is not None and head_depth is not None:
+        face = ~valid & (head >= 0.5) & np.isfinite(head_depth)
+        z_all = np.where(face, head_depth, z_all)
+        valid = valid | face
     depth = np.zeros(hair.shape, np.float32)
     if valid.any():
-        z = hair_depth[valid].astype(np.float64)
+        z = z_all[valid].astype(np.float64)
         lo, hi = float(z.min()), float(z.max())
         depth[valid] = np.round((z - lo) / max(hi - lo, 1e-9) * 65536.0) / 65536.0
     return depth, valid
@@ -238,7 +249,8 @@ def synthesize_sequence(dataset_root: str | Path, subject: str, seq_name: str, c
         write_image(frame_path(root, "images", cfg.serial, t, cfg.image_format), fr.image)
         write_mask(root, "alpha_maps", cfg.serial, t, fr.alpha)
         write_mask(root, "hair_masks", cfg.serial, t, fr.hair)
-        write_depth(root, cfg.serial, t, *relative_depth(fr.hair, fr.hair_depth))
+        context = (fr.head, fr.head_depth) if cfg.depth_context else (None, None)
+        write_depth(root, cfg.serial, t, *relative_depth(fr.hair, fr.hair_depth, *context))
         return moved if cfg.save_frame_points else None
 
     # frames are independent: two threads keep both cores busy (numpy releases the GIL)

@@ -38,27 +38,36 @@ class DepthConfig:
     """maximum reprojection error of a triangulated point, pixels."""
     min_parallax_deg: float = 2.0
     """minimum angle between the two viewing rays of a triangulated point."""
+    context: bool = False
+    """Keep the depth maps' valid pixels outside the hair mask (the visible head) as targets too,
+    in the same normalisation (the hair's quantiles), so the fit can place the hair against the
+    head (:func:`vid2haircut.fit.scene.image_losses`); False: the hair only."""
 
 
 def normalise_depth(depth: np.ndarray, valid: np.ndarray, mask: np.ndarray,
-                    quantiles: tuple[float, float] = (0.05, 0.95)) -> tuple[np.ndarray, np.ndarray]:
-    """Quantile-normalise depth inside the hair mask.
+                    quantiles: tuple[float, float] = (0.05, 0.95),
+                    context: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Quantile-normalise depth by its quantiles inside the hair mask.
 
     Args:
         depth: (H, W) larger = farther; valid: (H, W) bool; mask: (H, W) hair mask in [0, 1].
+        context: also keep the valid pixels outside the mask (same normalisation).
     Returns:
-        (depth (H, W) float32 normalised, valid (H, W) bool = valid & mask >= 0.5 & finite).
-        When fewer than 2 valid hair pixels exist, depth is 0 and valid all False.
+        (depth (H, W) float32 normalised, valid (H, W) bool = valid & mask >= 0.5 & finite, or
+        valid & finite with ``context``). When fewer than 2 valid hair pixels exist, depth is 0 and
+        valid all False.
     """
     d = np.asarray(depth, dtype=np.float64)
-    ok = np.asarray(valid, bool) & (np.asarray(mask) >= 0.5) & np.isfinite(d)
+    finite = np.asarray(valid, bool) & np.isfinite(d)
+    ok = finite & (np.asarray(mask) >= 0.5)
     if ok.sum() < 2:
         return np.zeros(d.shape, np.float32), np.zeros(d.shape, bool)
     lo, hi = np.quantile(d[ok], quantiles)
     if hi - lo < 1e-12:
         hi = lo + 1.0
-    out = np.where(ok, (d - lo) / (hi - lo), 0.0)
-    return out.astype(np.float32), ok
+    keep = finite if context else ok
+    out = np.where(keep, (d - lo) / (hi - lo), 0.0)
+    return out.astype(np.float32), keep
 
 
 def triangulate_dlt(p_a: np.ndarray, p_b: np.ndarray, P_a: np.ndarray, P_b: np.ndarray) -> np.ndarray:
@@ -171,7 +180,7 @@ def depth_targets(seq, keyframes: list[int], world_from_head: np.ndarray, masks:
         raw = {t: seq.read_depth(t) for t in keyframes}
         if all(r is not None for r in raw.values()):
             log.info("depth: from depth_maps/cam_%s", seq.serial)
-            return {t: normalise_depth(raw[t][0], raw[t][1], masks[t], cfg.quantiles) for t in keyframes}, "maps"
+            return {t: normalise_depth(raw[t][0], raw[t][1], masks[t], cfg.quantiles, cfg.context) for t in keyframes}, "maps"
         if cfg.source == "maps":
             missing = [t for t, r in raw.items() if r is None]
             folder = seq.root / "depth_maps" / f"cam_{seq.serial}"
