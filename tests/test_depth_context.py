@@ -76,7 +76,7 @@ def test_depth_term_with_the_head_sees_how_far_the_hair_stands_off_it():
         out, data = _fit_inputs(0.02)                                  # the hair 2 cm nearer the head
         off = image_losses(out, data, frames, align)["depth"]
         on = image_losses(out, data, frames, align, depth_head=True)["depth"]
-        assert float(off.detach()) < 1e-4 < 0.05 < float(on.detach())                    # a relative depth of the hair alone cannot tell
+        assert float(off.detach()) < 1e-4 < 0.05 < float(on.detach())   # the hair alone cannot tell
         on.backward()
         g = out.depth.grad[0]
         assert float(g[:, W // 2:].abs().sum()) > 0 and float(g[:, : W // 2].abs().sum()) == 0.0

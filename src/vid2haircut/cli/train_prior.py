@@ -9,7 +9,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("train_prior", help="train the hair prior (codec + network) on generated hairstyles",
                               description=__doc__)
     p.add_argument("--out-dir", required=True, help="artifact folder (codec.npz, prior.pt, prior.json)")
-    p.add_argument("--setting", default="default", choices=["default", "tiny", "render", "render_large", "standoff"], help="training preset (vid2haircut.prior.train.SETTINGS): default = photo-like views (the bundled prior), tiny = tests, render / render_large = direct renders, standoff = default with the standoff term")
+    p.add_argument("--setting", default="default", choices=["default", "tiny", "render", "render_large", "standoff"],
+                   help="training preset (vid2haircut.prior.train.SETTINGS): default = photo-like views (the "
+                        "bundled prior), tiny = tests, render / render_large = direct renders, standoff = default "
+                        "with the standoff term")
     p.add_argument("--seed", type=int, default=0, help="seed of views, initialisation and batches")
     p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
     p.add_argument("--cache-dir", default=None,

@@ -140,7 +140,8 @@ def run_targets(dataset_root: str | Path, subject: str, sequence: str, head_npz:
     seq = _open(dataset_root, subject, sequence, serial or extra["serial"] or None)
     try:
         targets, summary = compute_targets(seq, fit, mask_source=mask_source,
-                                           depth_cfg=DepthConfig(source=depth_source, context=depth_context), device=device,
+                                           depth_cfg=DepthConfig(source=depth_source, context=depth_context),
+                                           device=device,
                                            landmark_embedding=extra["landmark_embedding"])
     finally:
         seq.close()

@@ -115,8 +115,9 @@ the pipeline's targets, i.e. a photo of a dense copy of the style turned into ha
 orientation and relative depth, :func:`vid2haircut.prior.views.photo_view`), ``tiny`` (tests),
 ``render`` (the same but trained on direct renders of the strands, :func:`vid2haircut.prior.views.render_view`;
 the default before it, kept to measure the gap) and ``render_large`` (``render`` with 3x the
-hairstyles and 2x the steps) and ``standoff`` (``default`` with the standoff term at weight 2; measured worse downstream, Stage 1
-0.0913 against 0.0732 on the quality benchmark's first draw). The README's prior and quality sections give their measured effect."""
+hairstyles and 2x the steps) and ``standoff`` (``default`` with the standoff term at weight 2;
+measured worse downstream: Stage 1 0.0913 against 0.0732 on the quality benchmark's first draw).
+The README's prior and quality sections give their measured effect."""
 
 
 def config_fingerprint(cfg: TrainConfig, seed: int) -> str:

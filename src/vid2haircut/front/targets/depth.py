@@ -180,7 +180,8 @@ def depth_targets(seq, keyframes: list[int], world_from_head: np.ndarray, masks:
         raw = {t: seq.read_depth(t) for t in keyframes}
         if all(r is not None for r in raw.values()):
             log.info("depth: from depth_maps/cam_%s", seq.serial)
-            return {t: normalise_depth(raw[t][0], raw[t][1], masks[t], cfg.quantiles, cfg.context) for t in keyframes}, "maps"
+            return {t: normalise_depth(raw[t][0], raw[t][1], masks[t], cfg.quantiles, cfg.context)
+                    for t in keyframes}, "maps"
         if cfg.source == "maps":
             missing = [t for t, r in raw.items() if r is None]
             folder = seq.root / "depth_maps" / f"cam_{seq.serial}"
