@@ -328,6 +328,15 @@ class Stage2Config:
     gives 0.0397 / 0.2369 against 0.0393 / 0.2375, better on the short (0.0239 against 0.0284) and wavy
     (0.0485 against 0.0530) styles and worse on the other four (``benchmarks/RESULTS.md``, "The hair
     that no keyframe shows: too flat in the upper back")."""
+    render_dense: int = 0
+    """Draw this many dense strands, decoded from the hair map as the output is (differentiably;
+    uneven ends, carving and the push out of the head left out), in the image terms instead of the
+    guides (0: the guides); the visibility gate then acts on them, while the anchor and the PCA
+    consistency still take what the guides show (a forward render of the guides). Needs
+    ``switches.use_deformation`` off (the field moves guides)."""
+    dense_width: float = 0.0015
+    """Short-axis size of the dense strands' Gaussians with ``render_dense`` (opaque, in place of
+    ``render.strand_width`` and ``render.silhouette_opacity``, which stay the guides')."""
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0))
     """Loss weights (depth 1 rather than the published 0.1, measured with ``depth_align: affine``;
     see :attr:`depth_align`)."""

@@ -16,6 +16,7 @@ masking or the PCA consistency, each with one setting.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from typing import Callable
@@ -116,6 +117,8 @@ class Stage2Model(nn.Module):
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
         self.register_buffer("follow", torch.zeros(n, dtype=torch.bool, device=dev))
         self._extension: Tensor | None = None
+        if cfg.render_dense > 0 and self.deform is not None:
+            raise ValueError("render_dense needs switches.use_deformation false (the field moves guides)")
         self.last_render = None
         self.last_frames: Tensor | None = None
         self.last_deformed: Tensor | None = None
@@ -188,6 +191,19 @@ class Stage2Model(nn.Module):
         """(N,P,3) canonical guides (codec points) of the current Z."""
         return decode_layout(self.z, self.layout, self.codec)
 
+    def dense(self) -> Tensor:
+        """(D,P,3) ``cfg.render_dense`` dense strands of the current Z, differentiable (texels
+        without a guide take their neighbours' coefficients, without a gradient)."""
+        from vid2haircut.fit.outputs import extend_map
+        from vid2haircut.prior.hairmap import HairMap, decode_dense
+
+        z = self.z
+        carry = torch.zeros(z.shape[-2:], dtype=torch.bool, device=z.device)
+        carry.view(-1)[self.layout.texel_index] = True
+        z_ext = torch.where(carry[None], z, extend_map(z, carry))
+        return decode_dense(HairMap(z_ext, self.mask), self.data.head, self.codec,
+                            n_strands=self.cfg.render_dense, seed=self.cfg.seed).points
+
     def deformed(self, canon_render: Tensor, frames: Tensor, scale: float) -> tuple[Tensor, Tensor]:
         """Per-frame strands and offsets: (N,Pr,3) canonical -> ((B,N,Pr,3), (B,N,Pr,3)).
 
@@ -207,12 +223,18 @@ class Stage2Model(nn.Module):
         frames = self.frames_for_step(step)
         canon = self.canonical()                                                   # (N,P,3)
         scale = self.ramp(step)
-        moved, offs = self.deformed(canon[:, self.layout.render_index], frames, scale)
-        out = render_frames(moved, self.data, frames, cfg.render)
+        drawn = canon if cfg.render_dense <= 0 else self.dense()
+        moved, offs = self.deformed(drawn[:, self.layout.render_index], frames, scale)
+        drawing = cfg.render if cfg.render_dense <= 0 else dataclasses.replace(
+            cfg.render, strand_width=cfg.dense_width, silhouette_opacity=1.0)
+        out = render_frames(moved, self.data, frames, drawing)
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
-            self.seen[frames] = texel_visible_fraction(out.visibility).to(self.seen.dtype)
-            self.points_seen[frames] = point_visibility(out.visibility)
+            guides = out if cfg.render_dense <= 0 else render_frames(
+                canon[None, :, self.layout.render_index].expand(len(frames), -1, -1, -1), self.data, frames,
+                self.cfg.render)                                                   # what the guides show
+            self.seen[frames] = texel_visible_fraction(guides.visibility).to(self.seen.dtype)
+            self.points_seen[frames] = point_visibility(guides.visibility)
             self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames, cfg.depth_align, cfg.depth_head)

@@ -1,0 +1,57 @@
+"""Stage 2 drawing the dense hair instead of the guides in its image terms (``render_dense``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from vid2haircut.fit.config import Stage2Config
+from vid2haircut.fit.outputs import dense_strands
+from vid2haircut.fit.settings import apply_overrides
+from vid2haircut.fit.stage2 import Stage2Model, fit_stage2
+from vid2haircut.fit.toy import toy_problem
+
+FAST = {"iterations": 10, "canonical_steps": 3, "ramp_steps": 2, "lr_z": 0.1, "render": {"n_points": 16},
+        "n_dense": 300, "switches": {"use_deformation": False}, "render_dense": 150}
+
+
+@pytest.fixture(scope="module")
+def toy():
+    return toy_problem(size=40, n_frames=3, map_res=12, k=12)
+
+
+def _cfg(**extra) -> Stage2Config:
+    return apply_overrides(Stage2Config(), {**FAST, **extra})
+
+
+def test_the_drawn_dense_strands_are_the_outputs_before_the_push_and_uneven_ends(toy):
+    z0 = toy.z_gt + 0.3 * torch.randn(toy.z_gt.shape, generator=torch.Generator().manual_seed(0))
+    model = Stage2Model(toy.data, toy.codec, _cfg(), z0, toy.mask.clone())
+    drawn = model.dense()
+    out = dense_strands(z0, toy.mask, toy.data.head, toy.codec, 150, model.cfg.seed, toy.data.head_model,
+                        collision_margin=None)
+    assert drawn.shape == (150, toy.codec.n_points, 3)
+    assert np.allclose(drawn.detach().numpy(), out.points, atol=1e-6)
+    drawn.sum().backward()                                    # differentiable in the hair map
+    assert float(model.zmap.delta.grad.abs().sum()) > 0.0
+
+
+def test_dense_drawing_fits_and_keeps_the_guides_for_the_anchor(toy):
+    z0 = torch.zeros_like(toy.z_gt)
+    res = fit_stage2(toy.data, toy.codec, _cfg(), z0, toy.mask.clone(), progress=False)
+    t = res.history.terms
+    image = [sum(t[k][i] for k in ("silhouette", "direction")) for i in (0, -1)]
+    assert image[1] < 0.9 * image[0]
+    model = Stage2Model(toy.data, toy.codec, _cfg(), z0, toy.mask.clone())
+    guides = Stage2Model(toy.data, toy.codec, _cfg(render_dense=0), z0, toy.mask.clone())
+    a, b = model.get_loss_dict(0), guides.get_loss_dict(0)
+    assert torch.equal(model.points_seen, guides.points_seen)          # what the guides show, either way
+    assert float(a["silhouette"].detach()) != float(b["silhouette"].detach())   # but a different picture
+    assert model.gate.mask.shape[1] == 150                              # the gate acts on the drawn strands
+
+
+def test_dense_drawing_needs_the_deformation_off(toy):
+    with pytest.raises(ValueError, match="render_dense"):
+        Stage2Model(toy.data, toy.codec, _cfg(switches={"use_deformation": True}), torch.zeros_like(toy.z_gt),
+                    toy.mask.clone())
