@@ -43,6 +43,9 @@ def test_dense_drawing_fits_and_keeps_the_guides_for_the_anchor(toy):
     t = res.history.terms
     image = [sum(t[k][i] for k in ("silhouette", "direction")) for i in (0, -1)]
     assert image[1] < 0.9 * image[0]
+    moving = fit_stage2(toy.data, toy.codec, _cfg(switches={"use_deformation": True}), z0, toy.mask.clone(),
+                        progress=False).history.terms
+    assert not np.isnan(moving["motion"][-1]) and np.isnan(moving["motion"][0])   # the field joins after 3 steps
     model = Stage2Model(toy.data, toy.codec, _cfg(), z0, toy.mask.clone())
     guides = Stage2Model(toy.data, toy.codec, _cfg(render_dense=0), z0, toy.mask.clone())
     a, b = model.get_loss_dict(0), guides.get_loss_dict(0)
@@ -51,7 +54,21 @@ def test_dense_drawing_fits_and_keeps_the_guides_for_the_anchor(toy):
     assert model.gate.mask.shape[1] == 150                              # the gate acts on the drawn strands
 
 
-def test_dense_drawing_needs_the_deformation_off(toy):
-    with pytest.raises(ValueError, match="render_dense"):
-        Stage2Model(toy.data, toy.codec, _cfg(switches={"use_deformation": True}), torch.zeros_like(toy.z_gt),
-                    toy.mask.clone())
+def test_dense_strands_move_with_their_nearest_guides_embedding(toy):
+    cfg = _cfg(switches={"use_deformation": True})
+    model = Stage2Model(toy.data, toy.codec, cfg, torch.zeros_like(toy.z_gt), toy.mask.clone())
+    own = model._dense_owner
+    n = int(model.layout.texel_index.numel())
+    assert own.shape == (150,) and int(own.min()) >= 0 and int(own.max()) < n
+    assert len(torch.unique(own)) > n // 3                              # spread over the guides
+    with torch.no_grad():                                                # a field that is not at rest
+        model.deform.mlp[-1].weight.copy_(0.1 * torch.randn(model.deform.mlp[-1].weight.shape,
+                                                            generator=torch.Generator().manual_seed(1)))
+        model.deform.texel_embed.weight[int(own[0])] += 1.0              # move one guide's embedding
+    drawn = model.dense()[:, model.layout.render_index].detach()
+    _, offs = model.deformed(drawn, torch.tensor([1]), 1.0, own)
+    with torch.no_grad():
+        model.deform.texel_embed.weight[int(own[0])] -= 1.0
+    _, rest = model.deformed(drawn, torch.tensor([1]), 1.0, own)
+    changed = (offs - rest).abs().amax((0, 2, 3)) > 0
+    assert torch.equal(changed, own == own[0])                           # exactly the strands it owns

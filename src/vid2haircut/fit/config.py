@@ -332,8 +332,8 @@ class Stage2Config:
     """Draw this many dense strands, decoded from the hair map as the output is (differentiably;
     uneven ends, carving and the push out of the head left out), in the image terms instead of the
     guides (0: the guides); the visibility gate then acts on them, while the anchor and the PCA
-    consistency still take what the guides show (a forward render of the guides). Needs
-    ``switches.use_deformation`` off (the field moves guides)."""
+    consistency still take what the guides show (a forward render of the guides), and the
+    deformation field moves each dense strand with the embedding of the guide nearest its root."""
     dense_width: float = 0.0015
     """Short-axis size of the dense strands' Gaussians with ``render_dense`` (opaque, in place of
     ``render.strand_width`` and ``render.silhouette_opacity``, which stay the guides')."""

@@ -117,8 +117,8 @@ class Stage2Model(nn.Module):
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
         self.register_buffer("follow", torch.zeros(n, dtype=torch.bool, device=dev))
         self._extension: Tensor | None = None
-        if cfg.render_dense > 0 and self.deform is not None:
-            raise ValueError("render_dense needs switches.use_deformation false (the field moves guides)")
+        # with cfg.render_dense: the guide whose embedding moves each dense strand (the nearest in uv)
+        self._dense_owner = self._nearest_guides(mask) if cfg.render_dense > 0 else None
         self.last_render = None
         self.last_frames: Tensor | None = None
         self.last_deformed: Tensor | None = None
@@ -191,6 +191,18 @@ class Stage2Model(nn.Module):
         """(N,P,3) canonical guides (codec points) of the current Z."""
         return decode_layout(self.z, self.layout, self.codec)
 
+    def _nearest_guides(self, mask: Tensor) -> Tensor:
+        """(D,) index of the guide whose texel centre lies nearest (in scalp uv) to each of the
+        ``cfg.render_dense`` dense strands' roots."""
+        from vid2haircut.prior.hairmap import HairMap, decode_dense
+
+        with torch.no_grad():
+            uv = decode_dense(HairMap(self.zmap.z0, mask), self.data.head, self.codec,
+                              n_strands=self.cfg.render_dense, seed=self.cfg.seed).uv
+        res, tix = self.layout.res, self.layout.texel_index
+        centres = (torch.stack(((tix % res), (tix // res)), -1).to(uv) + 0.5) / res      # (N,2) u = column
+        return torch.cdist(uv, centres).argmin(1)
+
     def dense(self) -> Tensor:
         """(D,P,3) ``cfg.render_dense`` dense strands of the current Z, differentiable (texels
         without a guide take their neighbours' coefficients, without a gradient)."""
@@ -204,17 +216,20 @@ class Stage2Model(nn.Module):
         return decode_dense(HairMap(z_ext, self.mask), self.data.head, self.codec,
                             n_strands=self.cfg.render_dense, seed=self.cfg.seed).points
 
-    def deformed(self, canon_render: Tensor, frames: Tensor, scale: float) -> tuple[Tensor, Tensor]:
+    def deformed(self, canon_render: Tensor, frames: Tensor, scale: float,
+                 strand_index: Tensor | None = None) -> tuple[Tensor, Tensor]:
         """Per-frame strands and offsets: (N,Pr,3) canonical -> ((B,N,Pr,3), (B,N,Pr,3)).
 
         The per-frame copies pass through the visibility gate; with the deformation off (or scale
-        0) the offsets are exactly zero and the strands equal the canonical ones.
+        0) the offsets are exactly zero and the strands equal the canonical ones. ``strand_index``
+        (N,): the texel embedding of each strand (default: strand i is guide i).
         """
         b = int(frames.numel())
         per_frame = self.gate(canon_render[None].expand(b, -1, -1, -1))
         if self.deform is None or scale == 0.0:
             return per_frame, torch.zeros_like(per_frame)
-        moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), scale=scale) for i in range(b)))
+        moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), strand_index=strand_index, scale=scale)
+                            for i in range(b)))
         return torch.stack(moved), torch.stack(offs)
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
@@ -224,7 +239,7 @@ class Stage2Model(nn.Module):
         canon = self.canonical()                                                   # (N,P,3)
         scale = self.ramp(step)
         drawn = canon if cfg.render_dense <= 0 else self.dense()
-        moved, offs = self.deformed(drawn[:, self.layout.render_index], frames, scale)
+        moved, offs = self.deformed(drawn[:, self.layout.render_index], frames, scale, self._dense_owner)
         drawing = cfg.render if cfg.render_dense <= 0 else dataclasses.replace(
             cfg.render, strand_width=cfg.dense_width, silhouette_opacity=1.0)
         out = render_frames(moved, self.data, frames, drawing)
