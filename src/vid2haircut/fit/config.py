@@ -335,8 +335,11 @@ class Stage2Config:
     consistency still take what the guides show (a forward render of the guides), and the
     deformation field moves each dense strand with the embedding of the guide nearest its root."""
     dense_width: float = 0.0015
-    """Short-axis size of the dense strands' Gaussians with ``render_dense`` (opaque, in place of
-    ``render.strand_width`` and ``render.silhouette_opacity``, which stay the guides')."""
+    """Short-axis size of the dense strands' Gaussians with ``render_dense`` (in place of
+    ``render.strand_width``, which stays the guides')."""
+    dense_silhouette_opacity: float = 1.0
+    """Peak opacity of the dense strands in the silhouette term with ``render_dense`` (in place of
+    ``render.silhouette_opacity``, which stays the guides')."""
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0))
     """Loss weights (depth 1 rather than the published 0.1, measured with ``depth_align: affine``;
     see :attr:`depth_align`)."""

@@ -241,7 +241,7 @@ class Stage2Model(nn.Module):
         drawn = canon if cfg.render_dense <= 0 else self.dense()
         moved, offs = self.deformed(drawn[:, self.layout.render_index], frames, scale, self._dense_owner)
         drawing = cfg.render if cfg.render_dense <= 0 else dataclasses.replace(
-            cfg.render, strand_width=cfg.dense_width, silhouette_opacity=1.0)
+            cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity)
         out = render_frames(moved, self.data, frames, drawing)
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
