@@ -108,6 +108,25 @@ def extend_map(z: torch.Tensor, hair: torch.Tensor) -> torch.Tensor:
     return out
 
 
+def decode_dense_map(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_strands: int, seed: int,
+                     threshold: float = 0.5):
+    """The HAAR-upsampled dense strands of a map (:func:`vid2haircut.prior.hairmap.decode_dense`)
+    after extending it beyond its guides (:func:`extend_map`; guides are the valid scalp texels
+    with ``mask >= threshold``). Differentiable in ``z`` through the guides' texels (the extended
+    ones take their neighbours' values without a gradient).
+
+    Returns:
+        :class:`vid2haircut.prior.hairmap.DenseStrands`.
+    """
+    from vid2haircut.prior.hairmap import HairMap, decode_dense
+    from vid2haircut.prior.scalp import scalp_grid
+
+    valid = torch.as_tensor(scalp_grid(head, int(z.shape[-1])).valid, device=z.device)
+    hair = valid & (mask.detach() >= threshold)
+    z_ext = torch.where(hair[None], z, extend_map(z, hair))
+    return decode_dense(HairMap(z_ext, mask.detach()), head, codec, n_strands=n_strands, seed=seed)
+
+
 def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_strands: int, seed: int,
                   head_model: str, collision_margin: float | None = 1e-3, threshold: float = 0.5,
                   length_spread: float = 0.0, tip_scatter: float = 0.0) -> StrandSet:
@@ -118,13 +137,8 @@ def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_
     relative spread and ``seed``), and when ``tip_scatter`` > 0 fanned out around their paths
     (:func:`vid2haircut.strands.scatter_strands`, tips moved by that per-axis spread in metres);
     either way pushed out again, as a moved strand may reach the head."""
-    from vid2haircut.prior.hairmap import HairMap, decode_dense
-    from vid2haircut.prior.scalp import scalp_grid
-
-    valid = torch.as_tensor(scalp_grid(head, int(z.shape[-1])).valid, device=z.device)
-    z_ext = extend_map(z, valid & (mask.detach() >= threshold))
     with torch.no_grad():
-        d = decode_dense(HairMap(z_ext, mask.detach()), head, codec, n_strands=n_strands, seed=seed)
+        d = decode_dense_map(z, mask, head, codec, n_strands, seed, threshold)
     pts = d.points if collision_margin is None else push_out_of_head(d.points, head, collision_margin)
     if length_spread > 0 or tip_scatter > 0:
         from vid2haircut.strands import scatter_strands, vary_lengths

@@ -194,27 +194,22 @@ class Stage2Model(nn.Module):
     def _nearest_guides(self, mask: Tensor) -> Tensor:
         """(D,) index of the guide whose texel centre lies nearest (in scalp uv) to each of the
         ``cfg.render_dense`` dense strands' roots."""
-        from vid2haircut.prior.hairmap import HairMap, decode_dense
+        from vid2haircut.fit.outputs import decode_dense_map
 
         with torch.no_grad():
-            uv = decode_dense(HairMap(self.zmap.z0, mask), self.data.head, self.codec,
-                              n_strands=self.cfg.render_dense, seed=self.cfg.seed).uv
+            uv = decode_dense_map(self.zmap.z0, mask, self.data.head, self.codec, self.cfg.render_dense,
+                                  self.cfg.seed, self.cfg.mask_threshold).uv
         res, tix = self.layout.res, self.layout.texel_index
         centres = (torch.stack(((tix % res), (tix // res)), -1).to(uv) + 0.5) / res      # (N,2) u = column
         return torch.cdist(uv, centres).argmin(1)
 
     def dense(self) -> Tensor:
-        """(D,P,3) ``cfg.render_dense`` dense strands of the current Z, differentiable (texels
-        without a guide take their neighbours' coefficients, without a gradient)."""
-        from vid2haircut.fit.outputs import extend_map
-        from vid2haircut.prior.hairmap import HairMap, decode_dense
+        """(D,P,3) ``cfg.render_dense`` dense strands of the current Z, decoded as the output is
+        (:func:`vid2haircut.fit.outputs.decode_dense_map`), differentiable."""
+        from vid2haircut.fit.outputs import decode_dense_map
 
-        z = self.z
-        carry = torch.zeros(z.shape[-2:], dtype=torch.bool, device=z.device)
-        carry.view(-1)[self.layout.texel_index] = True
-        z_ext = torch.where(carry[None], z, extend_map(z, carry))
-        return decode_dense(HairMap(z_ext, self.mask), self.data.head, self.codec,
-                            n_strands=self.cfg.render_dense, seed=self.cfg.seed).points
+        return decode_dense_map(self.z, self.mask, self.data.head, self.codec, self.cfg.render_dense,
+                                self.cfg.seed, self.cfg.mask_threshold).points
 
     def deformed(self, canon_render: Tensor, frames: Tensor, scale: float,
                  strand_index: Tensor | None = None) -> tuple[Tensor, Tensor]:
@@ -247,7 +242,7 @@ class Stage2Model(nn.Module):
         with torch.no_grad():
             guides = out if cfg.render_dense <= 0 else render_frames(
                 canon[None, :, self.layout.render_index].expand(len(frames), -1, -1, -1), self.data, frames,
-                self.cfg.render)                                                   # what the guides show
+                cfg.render)                                                   # what the guides show
             self.seen[frames] = texel_visible_fraction(guides.visibility).to(self.seen.dtype)
             self.points_seen[frames] = point_visibility(guides.visibility)
             self._freeze_follow()
