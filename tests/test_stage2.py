@@ -54,7 +54,7 @@ def test_mlp_off_offsets_exactly_zero(toy):
     assert model.deform is None and model.ramp(100) == 0.0
     canon = model.canonical()[:, model.layout.render_index]
     frames = torch.arange(3)
-    moved, offs = model.deformed(canon, frames, 1.0)
+    moved, offs, _ = model.deformed(canon, frames, 1.0)
     assert torch.count_nonzero(offs) == 0 and torch.equal(moved, canon[None].expand(3, -1, -1, -1))
     assert "motion" not in model.get_loss_dict(50)
     # with the MLP on, the canonical steps are exactly rigid too
@@ -112,7 +112,7 @@ def test_visibility_masking_zeroes_gradient_of_invisible_segments(toy):
         model = Stage2Model(toy.data, toy.codec, cfg, z0, m0)
         canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
         frames = torch.tensor([1])                                          # one side view
-        moved, _ = model.deformed(canon, frames, 0.0)
+        moved, _, _ = model.deformed(canon, frames, 0.0)
         out = render_frames(moved, toy.data, frames, model.cfg.render)
         model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
         loss = image_losses(out, toy.data, frames)
@@ -132,7 +132,7 @@ def test_strand_visibility_unit_updates_whole_seen_strands_only(toy):
     model = Stage2Model(toy.data, toy.codec, _cfg(visibility_unit="strand"), z0, m0)
     canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
     frames = torch.tensor([1])
-    moved, _ = model.deformed(canon, frames, 0.0)
+    moved, _, _ = model.deformed(canon, frames, 0.0)
     out = render_frames(moved, toy.data, frames, model.cfg.render)
     model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
     loss = image_losses(out, toy.data, frames)
@@ -375,7 +375,7 @@ def test_outside_term_pulls_stray_strands_and_respects_the_gate(toy):
     assert toy.data.outside is not None and float(toy.data.outside.max()) > 1.0
     canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
     frames = torch.arange(3)
-    moved, _ = model.deformed(canon, frames, 0.0)
+    moved, _, _ = model.deformed(canon, frames, 0.0)
     out = render_frames(moved, toy.data, frames, model.cfg.render)
     model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
     from vid2haircut.fit.scene import outside_term

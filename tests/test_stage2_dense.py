@@ -54,7 +54,7 @@ def test_dense_drawing_fits_and_keeps_the_guides_for_the_anchor(toy):
     assert model.gate.mask.shape[1] == 150                              # the gate acts on the drawn strands
 
 
-def test_dense_strands_move_with_their_nearest_guides_embedding(toy):
+def test_dense_strands_take_the_offsets_of_their_nearest_guide(toy):
     cfg = _cfg(switches={"use_deformation": True})
     model = Stage2Model(toy.data, toy.codec, cfg, torch.zeros_like(toy.z_gt), toy.mask.clone())
     own = model._dense_owner
@@ -65,10 +65,19 @@ def test_dense_strands_move_with_their_nearest_guides_embedding(toy):
         model.deform.mlp[-1].weight.copy_(0.1 * torch.randn(model.deform.mlp[-1].weight.shape,
                                                             generator=torch.Generator().manual_seed(1)))
         model.deform.texel_embed.weight[int(own[0])] += 1.0              # move one guide's embedding
+    guides = model.canonical()[:, model.layout.render_index].detach()
     drawn = model.dense()[:, model.layout.render_index].detach()
-    _, offs = model.deformed(drawn, torch.tensor([1]), 1.0, own)
+    moved, offs, g_moved = model.deformed(drawn, torch.tensor([1]), 0.5, guides)
+    expect = 0.5 * model.deform.offsets(guides, 1)
+    assert float(expect.abs().max()) > 1e-4
+    torch.testing.assert_close(offs[0], expect[own])                     # point by point, nearest guide
+    seg = (moved[0, :, 1:] - moved[0, :, :-1]).norm(dim=-1)
+    torch.testing.assert_close(seg, (drawn[:, 1:] - drawn[:, :-1]).norm(dim=-1))   # lengths kept
+    assert float((moved[0] - drawn).abs().max()) > 1e-5
+    torch.testing.assert_close(g_moved[0, :, 0], guides[:, 0])             # the guides move too, roots fixed
+    assert float((g_moved[0] - guides).abs().max()) > 1e-5
     with torch.no_grad():
         model.deform.texel_embed.weight[int(own[0])] -= 1.0
-    _, rest = model.deformed(drawn, torch.tensor([1]), 1.0, own)
+    _, rest, _ = model.deformed(drawn, torch.tensor([1]), 0.5, guides)
     changed = (offs - rest).abs().amax((0, 2, 3)) > 0
     assert torch.equal(changed, own == own[0])                           # exactly the strands it owns

@@ -26,7 +26,7 @@ from torch import Tensor, nn
 
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
-from vid2haircut.fit.deform import DeformationField, DeformConfig
+from vid2haircut.fit.deform import DeformationField, DeformConfig, rechain
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
                                     penetration_loss, smoothness_losses, tip_height_loss)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
@@ -117,7 +117,7 @@ class Stage2Model(nn.Module):
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
         self.register_buffer("follow", torch.zeros(n, dtype=torch.bool, device=dev))
         self._extension: Tensor | None = None
-        # with cfg.render_dense: the guide whose embedding moves each dense strand (the nearest in uv)
+        # with cfg.render_dense: the guide whose offsets move each dense strand (the nearest in uv)
         self._dense_owner = self._nearest_guides(mask) if cfg.render_dense > 0 else None
         self.last_render = None
         self.last_frames: Tensor | None = None
@@ -212,20 +212,32 @@ class Stage2Model(nn.Module):
                                 self.cfg.seed, self.cfg.mask_threshold).points
 
     def deformed(self, canon_render: Tensor, frames: Tensor, scale: float,
-                 strand_index: Tensor | None = None) -> tuple[Tensor, Tensor]:
-        """Per-frame strands and offsets: (N,Pr,3) canonical -> ((B,N,Pr,3), (B,N,Pr,3)).
+                 guides: Tensor | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        """Per-frame strands, their offsets and the per-frame guides: (N,Pr,3) canonical ->
+        ((B,N,Pr,3), (B,N,Pr,3), (B,G,Pr,3)).
 
         The per-frame copies pass through the visibility gate; with the deformation off (or scale
-        0) the offsets are exactly zero and the strands equal the canonical ones. ``strand_index``
-        (N,): the texel embedding of each strand (default: strand i is guide i).
+        0) the offsets are exactly zero and the strands equal the canonical ones. ``guides``
+        (G,Pr,3): when ``canon_render`` holds ``cfg.render_dense`` dense strands, the field is
+        evaluated at these canonical guides (detached) and every dense strand takes the offsets of its nearest
+        guide, point by point, before its segment lengths are restored; the moved guides are
+        returned too (the penetration and motion terms act on them, as without dense drawing).
+        Without ``guides`` the third item is the first.
         """
         b = int(frames.numel())
         per_frame = self.gate(canon_render[None].expand(b, -1, -1, -1))
         if self.deform is None or scale == 0.0:
-            return per_frame, torch.zeros_like(per_frame)
-        moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), strand_index=strand_index, scale=scale)
-                            for i in range(b)))
-        return torch.stack(moved), torch.stack(offs)
+            still = per_frame if guides is None else guides[None].expand(b, -1, -1, -1)
+            return per_frame, torch.zeros_like(per_frame), still
+        if guides is None:
+            moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), scale=scale) for i in range(b)))
+            moved = torch.stack(moved)
+            return moved, torch.stack(offs), moved
+        g_offs = torch.stack([self.deform.offsets(guides.detach(), int(f)) * scale for f in frames])
+        g_moved = rechain(guides[None] + g_offs, (guides[:, 1:] - guides[:, :-1]).norm(dim=-1)[None])
+        offs = g_offs[:, self._dense_owner]
+        seg_len = (per_frame[:, :, 1:] - per_frame[:, :, :-1]).norm(dim=-1)
+        return rechain(per_frame + offs, seg_len), offs, g_moved
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
         """All Stage 2 terms at ``step`` (see the module docstring)."""
@@ -234,7 +246,8 @@ class Stage2Model(nn.Module):
         canon = self.canonical()                                                   # (N,P,3)
         scale = self.ramp(step)
         drawn = canon if cfg.render_dense <= 0 else self.dense()
-        moved, offs = self.deformed(drawn[:, self.layout.render_index], frames, scale, self._dense_owner)
+        moved, offs, moved_guides = self.deformed(drawn[:, self.layout.render_index], frames, scale,
+                                                  None if cfg.render_dense <= 0 else canon[:, self.layout.render_index])
         drawing = cfg.render if cfg.render_dense <= 0 else dataclasses.replace(
             cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity)
         out = render_frames(moved, self.data, frames, drawing)
@@ -252,7 +265,7 @@ class Stage2Model(nn.Module):
             losses["outside"] = outside_term(moved, self.data, frames, cfg.outside_tolerance)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
         if scale > 0.0:
-            pen = pen + penetration_loss(moved, self.data.head.sdf, self.cfg.penetration_margin)
+            pen = pen + penetration_loss(moved_guides, self.data.head.sdf, self.cfg.penetration_margin)
         losses["penetration"] = pen
         if cfg.switches.use_smoothness:
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
@@ -299,7 +312,7 @@ class Stage2Model(nn.Module):
         """Render every keyframe at the deformation scale of ``step`` (sets ``last_*``)."""
         frames = torch.arange(self.data.n_frames, device=self.zmap.z0.device)
         canon = self.canonical()
-        moved, _ = self.deformed(canon[:, self.layout.render_index], frames, self.ramp(step))
+        moved, _, _ = self.deformed(canon[:, self.layout.render_index], frames, self.ramp(step))
         out = render_frames(moved, self.data, frames, self.cfg.render)
         self.gate.mask = None
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved
