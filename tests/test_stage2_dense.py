@@ -81,3 +81,26 @@ def test_dense_strands_take_the_offsets_of_their_nearest_guide(toy):
     _, rest, _ = model.deformed(drawn, torch.tensor([1]), 0.5, guides)
     changed = (offs - rest).abs().amax((0, 2, 3)) > 0
     assert torch.equal(changed, own == own[0])                           # exactly the strands it owns
+
+
+def test_the_moved_hairs_penetration_is_the_moved_guides(toy):
+    """The dense strands, decoded without the push out of the head, may reach into it where no
+    guide does; the deformed phase's penetration term takes the moved guides, not them."""
+    from vid2haircut.fit.losses import penetration_loss
+
+    cfg = _cfg(switches={"use_deformation": True}, penetration_margin=-0.01)   # 1 cm of standoff: non-zero
+    z0 = toy.z_gt + 0.3 * torch.randn(toy.z_gt.shape, generator=torch.Generator().manual_seed(2))
+    model = Stage2Model(toy.data, toy.codec, cfg, z0, toy.mask.clone())
+    with torch.no_grad():
+        model.deform.mlp[-1].bias.fill_(0.5)                             # a field that moves the hair
+    step = cfg.canonical_steps + cfg.ramp_steps                          # full scale
+    losses = model.get_loss_dict(step)
+    canon = model.canonical()
+    guides = canon[:, model.layout.render_index]
+    _, _, moved_guides = model.deformed(model.dense()[:, model.layout.render_index], model.frames_for_step(step),
+                                        1.0, guides)
+    sdf, m = toy.data.head.sdf, cfg.penetration_margin
+    expect = penetration_loss(canon, sdf, m) + penetration_loss(moved_guides, sdf, m)
+    torch.testing.assert_close(losses["penetration"], expect)
+    drawn_moved = model.last_deformed
+    assert float(penetration_loss(drawn_moved, sdf, m)) != float(penetration_loss(moved_guides, sdf, m))

@@ -332,8 +332,12 @@ class Stage2Config:
     """Draw this many dense strands, decoded from the hair map as the output is (differentiably;
     uneven ends, carving and the push out of the head left out), in the image terms instead of the
     guides (0: the guides); the visibility gate then acts on them, while the anchor and the PCA
-    consistency still take what the guides show (a forward render of the guides), and the
-    deformation field moves each dense strand with the embedding of the guide nearest its root."""
+    consistency still take what the guides show (a forward render of the guides). The deformation
+    field is evaluated at the guides, and each dense strand takes the offsets of the guide nearest
+    its root; the penetration of the moved hair is the moved guides' (the dense strands, decoded
+    without the push, reach into the head where the guides do not: bob, 1.6% of their points more
+    than 1 mm inside against 0%, and a penetration term on them, moved or not, made Stage 2 worse:
+    ``benchmarks/RESULTS.md``, "Drawing the dense hair in Stage 2's image terms")."""
     dense_width: float = 0.0015
     """Short-axis size of the dense strands' Gaussians with ``render_dense`` (in place of
     ``render.strand_width``, which stays the guides')."""
