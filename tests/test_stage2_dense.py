@@ -104,3 +104,15 @@ def test_the_moved_hairs_penetration_is_the_moved_guides(toy):
     torch.testing.assert_close(losses["penetration"], expect)
     drawn_moved = model.last_deformed
     assert float(penetration_loss(drawn_moved, sdf, m)) != float(penetration_loss(moved_guides, sdf, m))
+
+
+def test_the_guides_are_drawn_before_dense_from_step(toy):
+    model = Stage2Model(toy.data, toy.codec, _cfg(dense_from_step=5), torch.zeros_like(toy.z_gt), toy.mask.clone())
+    n = int(model.layout.texel_index.numel())
+    assert not model.draws_dense(4) and model.draws_dense(5)
+    model.get_loss_dict(4)
+    assert model.gate.mask.shape[1] == n                                # the guides
+    model.get_loss_dict(5)
+    assert model.gate.mask.shape[1] == 150                              # the dense strands
+    assert not Stage2Model(toy.data, toy.codec, _cfg(render_dense=0, dense_from_step=5), torch.zeros_like(toy.z_gt),
+                           toy.mask.clone()).draws_dense(9)

@@ -338,6 +338,9 @@ class Stage2Config:
     without the push, reach into the head where the guides do not: bob, 1.6% of their points more
     than 1 mm inside against 0%, and a penetration term on them, moved or not, made Stage 2 worse:
     ``benchmarks/RESULTS.md``, "Drawing the dense hair in Stage 2's image terms")."""
+    dense_from_step: int = 0
+    """With ``render_dense``: the steps before this one still draw the guides (wide, translucent
+    strands whose image gradients reach further), the dense strands are drawn from it on."""
     dense_width: float = 0.0015
     """Short-axis size of the dense strands' Gaussians with ``render_dense`` (in place of
     ``render.strand_width``, which stays the guides')."""

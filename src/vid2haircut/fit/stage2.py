@@ -203,6 +203,10 @@ class Stage2Model(nn.Module):
         centres = (torch.stack(((tix % res), (tix // res)), -1).to(uv) + 0.5) / res      # (N,2) u = column
         return torch.cdist(uv, centres).argmin(1)
 
+    def draws_dense(self, step: int) -> bool:
+        """Whether ``step`` draws the dense strands (``cfg.render_dense`` from ``cfg.dense_from_step``)."""
+        return self.cfg.render_dense > 0 and step >= self.cfg.dense_from_step
+
     def dense(self) -> Tensor:
         """(D,P,3) ``cfg.render_dense`` dense strands of the current Z, decoded as the output is
         (:func:`vid2haircut.fit.outputs.decode_dense_map`), differentiable."""
@@ -245,15 +249,16 @@ class Stage2Model(nn.Module):
         frames = self.frames_for_step(step)
         canon = self.canonical()                                                   # (N,P,3)
         scale = self.ramp(step)
-        drawn = canon if cfg.render_dense <= 0 else self.dense()
+        dense = self.draws_dense(step)
+        drawn = self.dense() if dense else canon
         moved, offs, moved_guides = self.deformed(drawn[:, self.layout.render_index], frames, scale,
-                                                  None if cfg.render_dense <= 0 else canon[:, self.layout.render_index])
-        drawing = cfg.render if cfg.render_dense <= 0 else dataclasses.replace(
+                                                  canon[:, self.layout.render_index] if dense else None)
+        drawing = cfg.render if not dense else dataclasses.replace(
             cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity)
         out = render_frames(moved, self.data, frames, drawing)
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
-            guides = out if cfg.render_dense <= 0 else render_frames(
+            guides = out if not dense else render_frames(
                 canon[None, :, self.layout.render_index].expand(len(frames), -1, -1, -1), self.data, frames,
                 cfg.render)                                                   # what the guides show
             self.seen[frames] = texel_visible_fraction(guides.visibility).to(self.seen.dtype)
