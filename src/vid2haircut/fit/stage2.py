@@ -223,9 +223,9 @@ class Stage2Model(nn.Module):
         The per-frame copies pass through the visibility gate; with the deformation off (or scale
         0) the offsets are exactly zero and the strands equal the canonical ones. ``guides``
         (G,Pr,3): when ``canon_render`` holds ``cfg.render_dense`` dense strands, the field is
-        evaluated at these canonical guides (detached) and every dense strand takes the offsets of its nearest
-        guide, point by point, before its segment lengths are restored; the moved guides are
-        returned too (the penetration and motion terms act on them, as without dense drawing).
+        evaluated at these canonical guides (detached) and every dense strand takes the offsets of
+        its nearest guide, point by point, before its segment lengths are restored; the moved
+        guides are returned too (the penetration term takes them, as without dense drawing).
         Without ``guides`` the third item is the first.
         """
         b = int(frames.numel())
