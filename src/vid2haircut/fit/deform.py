@@ -161,7 +161,7 @@ class DeformationField(nn.Module):
         return w * c.max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
 
     def forward(self, points: torch.Tensor, frame: int, strand_index: torch.Tensor | None = None,
-                scale: float = 1.0) -> tuple[torch.Tensor, torch.Tensor]:
+                scale: float = 1.0, detach_input: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
         """Deformed canonical strands of keyframe ``frame`` and their offsets.
 
         Args:
@@ -169,13 +169,15 @@ class DeformationField(nn.Module):
             frame: keyframe position (index into the frame codes).
             strand_index: (N,) texel-embedding indices (default arange(N)).
             scale: factor on the offsets (the ramp-in of the schedule; 0 gives exactly ``points``).
+            detach_input: the MLP sees ``points`` detached (the offsets then reach the strands
+                only by being added to them, not through the MLP's inputs).
 
         Returns:
             (x + scale * dx_t with segment lengths restored (N,P,3), scale * dx_t (N,P,3)).
         """
         if scale == 0.0:
             return points, torch.zeros_like(points)
-        off = self.offsets(points, frame, strand_index) * scale
+        off = self.offsets(points.detach() if detach_input else points, frame, strand_index) * scale
         seg_len = (points[:, 1:] - points[:, :-1]).norm(dim=-1)
         return rechain(points + off, seg_len), off
 

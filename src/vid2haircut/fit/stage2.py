@@ -237,11 +237,10 @@ class Stage2Model(nn.Module):
             moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), scale=scale) for i in range(b)))
             moved = torch.stack(moved)
             return moved, torch.stack(offs), moved
-        g_offs = torch.stack([self.deform.offsets(guides.detach(), int(f)) * scale for f in frames])
-        g_moved = rechain(guides[None] + g_offs, (guides[:, 1:] - guides[:, :-1]).norm(dim=-1)[None])
-        offs = g_offs[:, self._dense_owner]
+        g_moved, g_offs = zip(*(self.deform(guides, int(f), scale=scale, detach_input=True) for f in frames))
+        offs = torch.stack(g_offs)[:, self._dense_owner]
         seg_len = (per_frame[:, :, 1:] - per_frame[:, :, :-1]).norm(dim=-1)
-        return rechain(per_frame + offs, seg_len), offs, g_moved
+        return rechain(per_frame + offs, seg_len), offs, torch.stack(g_moved)
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
         """All Stage 2 terms at ``step`` (see the module docstring)."""
