@@ -13,7 +13,7 @@ from vid2haircut.fit.stage2 import Stage2Model, fit_stage2
 from vid2haircut.fit.toy import toy_problem
 
 FAST = {"iterations": 10, "canonical_steps": 3, "ramp_steps": 2, "lr_z": 0.1, "render": {"n_points": 16},
-        "n_dense": 300, "switches": {"use_deformation": False}, "render_dense": 150}
+        "n_dense": 300, "switches": {"use_deformation": False}, "render_dense": 150, "dense_from_step": 0}
 
 
 @pytest.fixture(scope="module")
@@ -116,3 +116,35 @@ def test_the_guides_are_drawn_before_dense_from_step(toy):
     assert model.gate.mask.shape[1] == 150                              # the dense strands
     assert not Stage2Model(toy.data, toy.codec, _cfg(render_dense=0, dense_from_step=5), torch.zeros_like(toy.z_gt),
                            toy.mask.clone()).draws_dense(9)
+
+
+def test_by_default_the_dense_strands_are_drawn_from_the_end_of_the_canonical_steps(toy):
+    cfg = Stage2Config()
+    assert cfg.render_dense > 0 and cfg.dense_from_step < 0
+    model = Stage2Model(toy.data, toy.codec, _cfg(dense_from_step=-1), torch.zeros_like(toy.z_gt), toy.mask.clone())
+    c = model.cfg.canonical_steps
+    assert not model.draws_dense(c - 1) and model.draws_dense(c)
+
+
+def test_the_gate_zeroes_the_gradient_of_the_dense_points_a_frame_does_not_show(toy):
+    from vid2haircut.fit.scene import image_losses, render_frames
+    from vid2haircut.fit.visibility import gate_visibility, point_visibility
+
+    grads = {}
+    for use in (True, False):
+        cfg = _cfg(switches={"use_deformation": False, "use_visibility": use}, visibility_unit="segment")
+        model = Stage2Model(toy.data, toy.codec, cfg, torch.zeros_like(toy.z_gt), toy.mask.clone())
+        drawn = model.dense()[:, model.layout.render_index].detach().requires_grad_(True)
+        frames = torch.tensor([1])                                           # one side view
+        moved, _, _ = model.deformed(drawn, frames, 0.0, drawn[:5])
+        out = render_frames(moved, toy.data, frames, model.cfg.render)
+        model.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
+        loss = image_losses(out, toy.data, frames)
+        (loss["silhouette"] + loss["direction"]).backward()
+        grads[use] = (drawn.grad.norm(dim=-1), out.visibility[0])
+    (g_on, vis), (g_off, _) = grads[True], grads[False]
+    pv = point_visibility(vis)
+    assert pv.shape == g_on.shape and pv.any() and (~pv).any()
+    assert float(g_on[~pv].abs().max()) == 0.0                               # hidden dense points get nothing
+    assert float(g_off[~pv].abs().max()) > 0.0
+    torch.testing.assert_close(g_on[pv], g_off[pv])

@@ -328,23 +328,28 @@ class Stage2Config:
     gives 0.0397 / 0.2369 against 0.0393 / 0.2375, better on the short (0.0239 against 0.0284) and wavy
     (0.0485 against 0.0530) styles and worse on the other four (``benchmarks/RESULTS.md``, "The hair
     that no keyframe shows: too flat in the upper back")."""
-    render_dense: int = 0
+    render_dense: int = 2000
     """Draw this many dense strands, decoded from the hair map as the output is (differentiably;
     uneven ends, carving and the push out of the head left out), in the image terms instead of the
-    guides (0: the guides); the visibility gate then acts on them, while the anchor and the PCA
-    consistency still take what the guides show (a forward render of the guides). The deformation
-    field is evaluated at the guides, and each dense strand takes the offsets of the guide nearest
-    its root; the penetration of the moved hair is the moved guides' (the dense strands, decoded
-    without the push, reach into the head where the guides do not: bob, 1.6% of their points more
-    than 1 mm inside against 0%, and a penetration term on them, moved or not, made Stage 2 worse:
-    ``benchmarks/RESULTS.md``, "Drawing the dense hair in Stage 2's image terms")."""
-    dense_from_step: int = 0
-    """With ``render_dense``: the steps before this one still draw the guides (4 mm wide and
-    translucent), the dense strands are drawn from it on. Measured (2000 dense strands, seed 0,
-    Chamfer_pts 1e-4 m^2): from step 300, the end of the canonical steps, Stage 2 gives 0.0360 and
-    0.0342 on the two draws of ``benchmarks/quality.py`` against the default's 0.0393 and 0.0369;
-    from step 0 0.0408 and 0.0339, as the wavy style fails (0.0530 -> 0.0745; ``benchmarks/RESULTS.md``,
-    "Drawing the dense hair in Stage 2's image terms")."""
+    guides (0: the guides throughout), from :attr:`dense_from_step` on; the visibility gate then acts
+    on them, while the anchor and the PCA consistency still take what the guides show (a forward
+    render of the guides). The deformation field is evaluated at the guides, and each dense strand
+    takes the offsets of the guide nearest its root; the penetration of the moved hair is the moved
+    guides' (the dense strands, decoded without the push, reach into the head where the guides do
+    not: bob, 1.6% of their points more than 1 mm inside against 0%, and a penetration term on them,
+    moved or not, made Stage 2 worse: ``benchmarks/RESULTS.md``, "Drawing the dense hair in Stage 2's
+    image terms"). The guides are 4 mm wide and translucent and stand for the hair between them;
+    the dense strands draw the hair as the output has it. Measured on ``benchmarks/quality.py``
+    (seed 0, Chamfer_pts 1e-4 m^2): 2000 from step 300 gives 0.0360 and 0.0342 on its two draws
+    against 0.0393 and 0.0369 with the guides throughout, at 1.36x the time."""
+    dense_from_step: int = -1
+    """With ``render_dense``: the steps before this one still draw the guides, the dense strands
+    are drawn from it on (negative: from :attr:`canonical_steps`, where the deformation field starts).
+    Measured (2000 dense strands, seed 0, Chamfer_pts 1e-4 m^2): from step 300, the end of the
+    canonical steps, Stage 2 gives 0.0360 and 0.0342 on the two draws of ``benchmarks/quality.py``;
+    from step 0 0.0408 and 0.0339, as the wavy style fails (0.0530 -> 0.0745), and from step 150 the
+    wavy style fails again (0.0764; ``benchmarks/RESULTS.md``, "Drawing the dense hair in Stage 2's
+    image terms")."""
     dense_width: float = 0.0015
     """Short-axis size of the dense strands' Gaussians with ``render_dense`` (in place of
     ``render.strand_width``, which stays the guides')."""

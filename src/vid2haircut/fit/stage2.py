@@ -204,8 +204,10 @@ class Stage2Model(nn.Module):
         return torch.cdist(uv, centres).argmin(1)
 
     def draws_dense(self, step: int) -> bool:
-        """Whether ``step`` draws the dense strands (``cfg.render_dense`` from ``cfg.dense_from_step``)."""
-        return self.cfg.render_dense > 0 and step >= self.cfg.dense_from_step
+        """Whether ``step`` draws the dense strands (``cfg.render_dense`` from ``cfg.dense_from_step``,
+        or from ``cfg.canonical_steps`` when that is negative)."""
+        start = self.cfg.dense_from_step if self.cfg.dense_from_step >= 0 else self.cfg.canonical_steps
+        return self.cfg.render_dense > 0 and step >= start
 
     def dense(self) -> Tensor:
         """(D,P,3) ``cfg.render_dense`` dense strands of the current Z, decoded as the output is
