@@ -32,7 +32,8 @@ table of the per-seed means and in how many seeds each ablation is worse than th
 the ablations' effects are of the size of the seed-to-seed spread.
 The tables are written by ``quality_report.py``. Every stage's outputs are cached under
 ``--work``: a second run only redoes what is missing, so the benchmark can be run in pieces
-(``--sequences``, ``--variants``).
+(``--sequences``, ``--variants``); ``--jobs 2 --threads 1`` runs it as two processes, one per
+sequence and Stage 2 variant at a time.
 
     .venv/bin/python benchmarks/quality.py --work results/benchmarks/quality --out results/benchmarks/quality.md
     .venv/bin/python benchmarks/quality.py --sway-gain 0.03 --work results/benchmarks/quality_sway \
@@ -221,6 +222,56 @@ def run_variant(seq: dict, name: str, work: Path, prior_dir: Path, settings: dic
     return out / "strands.npz", float(json.loads(rec.read_text())["fit_seconds"])
 
 
+def job_plan(names: list[str], variants: list[str]) -> list[list[tuple[str, list[str]]]]:
+    """The ``--jobs`` schedule: phases of (sequence, variants) jobs, each phase's jobs independent.
+
+    The first phase runs per sequence what other variants start from (Stage 1, or the variant of
+    :data:`STAGE2_FROM`) and the variants that are not Stage 2's; the second runs each Stage 2
+    variant of each sequence on its own, a variant's row for every sequence before the next
+    variant's (so a schedule stopped early leaves whole rows)."""
+    stage2 = [v for v in variants if v in STAGE2_VARIANTS]
+    bases = {STAGE2_FROM.get(v, "stage1") for v in stage2}
+    first = [v for v in DEFAULT_VARIANTS + list(STAGE1_VARIANTS) + ["oracle"]
+             if (v in bases or (v in variants and v not in STAGE2_VARIANTS))]
+    first += [v for v in variants if v not in STAGE2_VARIANTS and v not in first]
+    first = list(dict.fromkeys(first))
+    return [p for p in ([(n, first) for n in names] if first else [],
+                        [(n, [v]) for v in stage2 for n in names]) if p]
+
+
+def run_jobs(plan: list[list[tuple[str, list[str]]]], args: argparse.Namespace, jobs: int) -> None:
+    """Run each phase's (sequence, variants) jobs as ``jobs`` parallel processes of this script
+    (same options, logs under ``<work>/logs/``); SystemExit naming the logs of failed jobs."""
+    import subprocess
+    import sys
+    from concurrent.futures import ThreadPoolExecutor
+
+    common = ["--work", args.work, "--frames", str(args.frames), "--sway-gain", repr(args.sway_gain),
+              "--head-fill", repr(args.head_fill), "--yaw-max", repr(args.yaw_max), "--keyframes",
+              str(args.keyframes), "--stage2-seeds", args.stage2_seeds]
+    for flag, value in (("--prior-dir", args.prior_dir), ("--settings", args.settings), ("--threads", args.threads)):
+        if value is not None:
+            common += [flag, str(value)]
+    common += ["--quick"] * args.quick + ["--depth-context"] * args.depth_context
+    logs = Path(args.work) / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+
+    def one(job: tuple[str, list[str]]) -> Path | None:
+        name, vs = job
+        path = logs / f"{name}_{'+'.join(vs)}.log"
+        with open(path, "w") as fh:
+            rc = subprocess.call([sys.executable, __file__, *common, "--sequences", name, "--variants",
+                                  ",".join(vs)], stdout=fh, stderr=subprocess.STDOUT)
+        log.info("%s %s: %s", name, ",".join(vs), "done" if rc == 0 else f"failed ({rc}), see {path}")
+        return path if rc else None
+
+    for phase in plan:
+        with ThreadPoolExecutor(jobs) as ex:
+            failed = [p for p in ex.map(one, phase) if p]
+        if failed:
+            raise SystemExit("quality: jobs failed, see " + ", ".join(map(str, failed)))
+
+
 def _merge(a: dict, b: dict) -> dict:
     out = json.loads(json.dumps(a))
     for k, v in b.items():
@@ -286,7 +337,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--variants", default=",".join(DEFAULT_VARIANTS), help="comma-separated variants")
     p.add_argument("--settings", default=None, help='JSON {"stage1": {...}, "stage2": {...}} overrides')
     p.add_argument("--frames", type=int, default=48, help="frames per synthetic sequence")
-    p.add_argument("--threads", type=int, default=None, help="torch threads")
+    p.add_argument("--threads", type=int, default=None, help="torch threads (per process)")
+    p.add_argument("--jobs", type=int, default=1,
+                   help="run the sequences' variants as this many parallel processes of this script "
+                        "(one per sequence and Stage 2 variant; with --threads 1 on a 2-core machine, 2)")
     p.add_argument("--sway-gain", type=float, default=SWAY_GAIN,
                    help="hair sway gain of the synthesised sequences (SynthConfig.sway_gain)")
     p.add_argument("--head-fill", type=float, default=HEAD_FILL,
@@ -327,6 +381,11 @@ def main(argv: list[str] | None = None) -> int:
         pool.setdefault(name, parse_sequence(name))
     variants = args.variants.split(",")
     seeds = [int(x) for x in args.stage2_seeds.split(",")]
+    if args.jobs > 1:
+        for name in names:  # the data first, one sequence at a time; the jobs then share it
+            prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes, args.yaw_max,
+                    args.depth_context)
+        run_jobs(job_plan(names, variants), args, args.jobs)
     results, times, per_seed = {}, {}, {}
     for name in names:
         t0 = time.perf_counter()

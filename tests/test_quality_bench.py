@@ -268,3 +268,37 @@ def test_length_spread_standoff_deviation_is_per_texel():
     dev = spread.standoff_deviation(sdf, groups, 2)
     assert sorted(np.round(dev * 1e3, 6)) == [-2.0, -2.0, 0.0, 0.0, 2.0, 5.0]
     assert np.allclose(spread.standoff_deviation(sdf, groups, 0), 0.0)
+
+
+def test_job_plan_runs_the_starts_first_then_one_job_per_stage2_row(quality):
+    plan = quality.job_plan(["a", "b"], ["prior", "stage2", "no_pca", "stage2_ft"])
+    assert plan[0] == [("a", ["prior", "stage1_ft", "stage1"]), ("b", ["prior", "stage1_ft", "stage1"])]
+    assert plan[1] == [("a", ["stage2"]), ("b", ["stage2"]), ("a", ["no_pca"]), ("b", ["no_pca"]),
+                       ("a", ["stage2_ft"]), ("b", ["stage2_ft"])]
+    assert quality.job_plan(["a"], ["oracle"]) == [[("a", ["oracle"])]]
+
+
+def test_jobs_forward_the_options_and_name_the_failed_log(quality, tmp_path, monkeypatch):
+    import subprocess
+
+    calls = []
+
+    def fake_call(argv, stdout, stderr):
+        calls.append(argv)
+        return 1 if "b" in argv else 0
+
+    monkeypatch.setattr(subprocess, "call", fake_call)
+    args = quality.argparse.Namespace(work=str(tmp_path), frames=8, sway_gain=0.03, head_fill=0.6, yaw_max=60.0,
+                                      keyframes=6, stage2_seeds="0,1", prior_dir=None, settings='{"stage2": {}}',
+                                      threads=1, quick=False, depth_context=True)
+    with pytest.raises(SystemExit, match="b_stage2.log"):
+        quality.run_jobs([[("a", ["stage1"])], [("a", ["stage2"]), ("b", ["stage2"])]], args, 2)
+    assert len(calls) == 3 and calls[0][-4:] == ["--sequences", "a", "--variants", "stage1"]
+    flags = calls[0][2:-4]
+    opts = dict(zip(flags[::2], flags[1::2]))
+    assert opts["--work"] == str(tmp_path) and opts["--sway-gain"] == "0.03" and opts["--threads"] == "1"
+    assert opts["--stage2-seeds"] == "0,1" and opts["--settings"] == '{"stage2": {}}'
+    assert "--depth-context" in flags and "--quick" not in flags and "--prior-dir" not in flags
+    with pytest.raises(SystemExit):        # a failed phase stops the next one
+        quality.run_jobs([[("b", ["stage1"])], [("a", ["stage2"])]], args, 2)
+    assert calls[-1][-3] == "b"
