@@ -231,11 +231,8 @@ def job_plan(names: list[str], variants: list[str]) -> list[list[tuple[str, list
     variant of each sequence on its own, a variant's row for every sequence before the next
     variant's (so a schedule stopped early leaves whole rows)."""
     stage2 = [v for v in variants if v in STAGE2_VARIANTS]
-    bases = {STAGE2_FROM.get(v, "stage1") for v in stage2}
-    first = [v for v in DEFAULT_VARIANTS + list(STAGE1_VARIANTS) + ["oracle"]
-             if (v in bases or (v in variants and v not in STAGE2_VARIANTS))]
-    first += [v for v in variants if v not in STAGE2_VARIANTS and v not in first]
-    first = list(dict.fromkeys(first))
+    wanted = {STAGE2_FROM.get(v, "stage1") for v in stage2} | {v for v in variants if v not in STAGE2_VARIANTS}
+    first = [v for v in dict.fromkeys(DEFAULT_VARIANTS + variants) if v in wanted]
     return [p for p in ([(n, first) for n in names] if first else [],
                         [(n, [v]) for v in stage2 for n in names]) if p]
 
