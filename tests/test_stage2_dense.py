@@ -136,7 +136,7 @@ def test_the_gate_zeroes_the_gradient_of_the_dense_points_a_frame_does_not_show(
         model = Stage2Model(toy.data, toy.codec, cfg, torch.zeros_like(toy.z_gt), toy.mask.clone())
         drawn = model.dense()[:, model.layout.render_index].detach().requires_grad_(True)
         frames = torch.tensor([1])                                           # one side view
-        moved, _, _ = model.deformed(drawn, frames, 0.0, drawn[:5])
+        moved, _, _ = model.deformed(drawn, frames, 0.0)
         out = render_frames(moved, toy.data, frames, model.cfg.render)
         model.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         loss = image_losses(out, toy.data, frames)
