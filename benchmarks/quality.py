@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import sys
 import time
 from pathlib import Path
 
@@ -237,21 +238,32 @@ def job_plan(names: list[str], variants: list[str]) -> list[list[tuple[str, list
                         [(n, [v]) for v in stage2 for n in names]) if p]
 
 
-def run_jobs(plan: list[list[tuple[str, list[str]]]], args: argparse.Namespace, jobs: int) -> None:
-    """Run each phase's (sequence, variants) jobs as ``jobs`` parallel processes of this script
-    (same options, logs under ``<work>/logs/``); SystemExit naming the logs of failed jobs."""
+PER_JOB = ("--sequences", "--variants", "--jobs", "--out")  # options each --jobs process gets its own of
+
+
+def forwarded(argv: list[str]) -> list[str]:
+    """``argv`` without the options of :data:`PER_JOB` (``--x v`` or ``--x=v``): what every ``--jobs``
+    process shares."""
+    out, skip = [], False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in PER_JOB:
+            skip = True
+        elif not arg.startswith(tuple(f"{o}=" for o in PER_JOB)):
+            out.append(arg)
+    return out
+
+
+def run_jobs(plan: list[list[tuple[str, list[str]]]], argv: list[str], work: str, jobs: int) -> None:
+    """Run each phase's (sequence, variants) jobs as ``jobs`` parallel processes of this script with
+    the options of ``argv`` (:func:`forwarded`; logs under ``<work>/logs/``); SystemExit naming the
+    logs of failed jobs."""
     import subprocess
-    import sys
     from concurrent.futures import ThreadPoolExecutor
 
-    common = ["--work", args.work, "--frames", str(args.frames), "--sway-gain", repr(args.sway_gain),
-              "--head-fill", repr(args.head_fill), "--yaw-max", repr(args.yaw_max), "--keyframes",
-              str(args.keyframes), "--stage2-seeds", args.stage2_seeds]
-    for flag, value in (("--prior-dir", args.prior_dir), ("--settings", args.settings), ("--threads", args.threads)):
-        if value is not None:
-            common += [flag, str(value)]
-    common += ["--quick"] * args.quick + ["--depth-context"] * args.depth_context
-    logs = Path(args.work) / "logs"
+    common = forwarded(argv)
+    logs = Path(work) / "logs"
     logs.mkdir(parents=True, exist_ok=True)
 
     def one(job: tuple[str, list[str]]) -> Path | None:
@@ -278,7 +290,7 @@ def _merge(a: dict, b: dict) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)  # see forwarded
     p.add_argument("--work", default="results/benchmarks/quality", help="cache / work folder")
     p.add_argument("--out", default=None, help="also write the Markdown table here")
     p.add_argument("--prior-dir", default=None, help="trained prior (default: the packaged one)")
@@ -334,7 +346,7 @@ def main(argv: list[str] | None = None) -> int:
         for name in names:  # the data first, one sequence at a time; the jobs then share it
             prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes, args.yaw_max,
                     args.depth_context)
-        run_jobs(job_plan(names, variants), args, args.jobs)
+        run_jobs(job_plan(names, variants), sys.argv[1:] if argv is None else argv, args.work, args.jobs)
     results, times, per_seed = {}, {}, {}
     for name in names:
         t0 = time.perf_counter()

@@ -288,17 +288,15 @@ def test_jobs_forward_the_options_and_name_the_failed_log(quality, tmp_path, mon
         return 1 if "b" in argv else 0
 
     monkeypatch.setattr(subprocess, "call", fake_call)
-    args = quality.argparse.Namespace(work=str(tmp_path), frames=8, sway_gain=0.03, head_fill=0.6, yaw_max=60.0,
-                                      keyframes=6, stage2_seeds="0,1", prior_dir=None, settings='{"stage2": {}}',
-                                      threads=1, quick=False, depth_context=True)
+    argv = ["--work", str(tmp_path), "--sway-gain", "0.03", "--jobs", "2", "--threads", "1", "--sequences", "a,b",
+            "--stage2-seeds", "0,1", "--variants=stage2", "--settings", '{"stage2": {}}', "--out", "t.md",
+            "--depth-context"]
     with pytest.raises(SystemExit, match="b_stage2.log"):
-        quality.run_jobs([[("a", ["stage1"])], [("a", ["stage2"]), ("b", ["stage2"])]], args, 2)
+        quality.run_jobs([[("a", ["stage1"])], [("a", ["stage2"]), ("b", ["stage2"])]], argv, str(tmp_path), 2)
     assert len(calls) == 3 and calls[0][-4:] == ["--sequences", "a", "--variants", "stage1"]
     flags = calls[0][2:-4]
-    opts = dict(zip(flags[::2], flags[1::2]))
-    assert opts["--work"] == str(tmp_path) and opts["--sway-gain"] == "0.03" and opts["--threads"] == "1"
-    assert opts["--stage2-seeds"] == "0,1" and opts["--settings"] == '{"stage2": {}}'
-    assert "--depth-context" in flags and "--quick" not in flags and "--prior-dir" not in flags
+    assert flags == ["--work", str(tmp_path), "--sway-gain", "0.03", "--threads", "1", "--stage2-seeds", "0,1",
+                     "--settings", '{"stage2": {}}', "--depth-context"]   # every shared option, no per-job one
     with pytest.raises(SystemExit):        # a failed phase stops the next one
-        quality.run_jobs([[("b", ["stage1"])], [("a", ["stage2"])]], args, 2)
+        quality.run_jobs([[("b", ["stage1"])], [("a", ["stage2"])]], argv, str(tmp_path), 2)
     assert calls[-1][-3] == "b"
