@@ -37,9 +37,10 @@ from vid2haircut.render.allocator import tune_cpu_allocator
 from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, check_points, segment_gaussians
 from vid2haircut.render.kernels import KernelConsts
-from vid2haircut.render.numba_backend import composite_fused, resolve_backend
+from vid2haircut.render.project import check_cameras
+from vid2haircut.render.numba_backend import composite_fused, gaussian_table, project_fused, resolve_backend
 from vid2haircut.render.raster import composite
-from vid2haircut.render.types import PixelSums, StrandRender
+from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
 
 DEFAULT_ALPHA_MIN = math.exp(-4.5)
 """Contributions below this alpha are dropped (the ellipse is cut at 3 standard deviations)."""
@@ -122,9 +123,16 @@ def render_strands(
         raise ValueError(f"head_depth must have shape ({B}, {height}, {width}), got {tuple(head_depth.shape)}")
     K = torch.as_tensor(K, device=points.device)
     world_2_cam = torch.as_tensor(world_2_cam, device=points.device)
-    g = segment_gaussians(points, K, world_2_cam, strand_width, dilation, near)
-    S = g.depths.shape[1]
+    check_cameras(K, world_2_cam, B)
+    S = N * (P - 1)
     G = B * S
+    table = None  # the numba backend's [G, 8] Gaussian table
+    if use_numba and not (K.requires_grad or world_2_cam.requires_grad):  # fused projection (gradients reach the points)
+        table, covs, valid = project_fused(points, K, world_2_cam, strand_width, dilation, near)
+        g = Gaussians2D(table[:, 0:2].reshape(B, S, 2), covs.reshape(B, S, 3), table[:, 5].reshape(B, S),
+                        table[:, 6:8].reshape(B, S, 2), valid.reshape(B, S))
+    else:
+        g = segment_gaussians(points, K, world_2_cam, strand_width, dilation, near)
     frame = torch.arange(B, device=points.device).repeat_interleave(S)
     log_op = math.log(opacity)
     # CPU: cache-sized chunks; GPU: one chunk (each chunk costs kernel launches, not memory traffic)
@@ -133,7 +141,9 @@ def render_strands(
     flat = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2))
     power_min = math.log(alpha_min) - log_op
     if use_numba:
-        sums, visible = composite_fused(*flat, g.valid.reshape(G), frame, B, height, width, consts, power_min,
+        if table is None:
+            table = gaussian_table(*flat)
+        sums, visible = composite_fused(table, flat[1], g.valid.reshape(G), frame, B, height, width, consts, power_min,
                                         head_depth)
     else:
         fp = build_footprint(flat[0], flat[1], g.valid.reshape(G), frame, height, width, power_min)

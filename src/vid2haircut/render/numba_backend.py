@@ -81,7 +81,7 @@ def resolve_backend(backend: str, points: Tensor) -> str:
 class _Plan:
     """Everything the kernels need besides the differentiable Gaussian values (numpy arrays)."""
 
-    def __init__(self, wint, wflt, frame, head, consts: KernelConsts, batch: int, height: int, width: int):
+    def __init__(self, wint, wflt, frame, head, consts: KernelConsts, batch: int, height: int, width: int, dtype):
         import numba
 
         from vid2haircut.render import numba_tiles, numba_walk
@@ -91,10 +91,11 @@ class _Plan:
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
                 wint, wflt, frame, batch, width, height, TILE)
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
+        bounds = bounds + TILE  # the walk's compaction writes up to a line of lanes past the last element
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
         self.has_head = head is not None
-        self.head = head if head is not None else np.zeros((1, 1, 1))
+        self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         self.consts = np.array([consts.log_opacity, consts.alpha_min, consts.alpha_max], np.float64)
         self.nbins = int(consts.bins) if consts.shading else 1
         self.vis_weight = float(consts.vis_weight)
@@ -103,33 +104,80 @@ class _Plan:
         self.work_start, self.work_tiles = numba_tiles.assign_tiles(self.tile_start, numba.get_num_threads())
 
 
-def _gpar(means: Tensor, qxx: Tensor, qxy: Tensor, qyy: Tensor, z: Tensor, dirs: Tensor) -> np.ndarray:
-    """[G, 8] float64 table (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a)."""
-    cols = (means[:, 0], means[:, 1], qxx, qxy, qyy, z, dirs[:, 0], dirs[:, 1])
-    return torch.stack([c.detach().to(torch.float64) for c in cols], 1).contiguous().numpy()
+def gaussian_table(means: Tensor, covs: Tensor, depths: Tensor, dirs: Tensor) -> Tensor:
+    """[G, 8] table (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a) of flattened Gaussians
+    (differentiable; the layout :func:`composite_fused` takes and :func:`project_fused` makes)."""
+    qxx, qxy, qyy = conics(covs)
+    return torch.stack([means[:, 0], means[:, 1], qxx, qxy, qyy, depths, dirs[:, 0], dirs[:, 1]], 1)
+
+
+class _FusedProject(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, points, K, world_2_cam, strand_width, dilation, near):
+        from vid2haircut.render import numba_project as npj
+
+        B, N, P = points.shape[:3]
+        G = B * N * (P - 1)
+        pts = points.detach().contiguous().numpy()
+        Kn = K.detach().to(points.dtype).contiguous().numpy()
+        En = world_2_cam.detach().to(points.dtype).contiguous().numpy()
+        gpar, covs = np.empty((G, 8), pts.dtype), np.empty((G, 3), pts.dtype)
+        valid = np.empty(G, np.bool_)
+        with _LOCK:
+            npj.project_forward(pts, Kn, En, strand_width, dilation, near, gpar, covs, valid)
+        ctx.arrays, ctx.consts = (pts, Kn, En), (strand_width, dilation, near)
+        covs_t, valid_t = torch.from_numpy(covs), torch.from_numpy(valid)
+        ctx.mark_non_differentiable(covs_t, valid_t)
+        return torch.from_numpy(gpar), covs_t, valid_t
+
+    @staticmethod
+    def backward(ctx, grad, _g_covs, _g_valid):
+        from vid2haircut.render import numba_project as npj
+
+        pts, Kn, En = ctx.arrays
+        out = np.empty(pts.shape)
+        g = grad.detach().to(torch.float64).contiguous().numpy()
+        with _LOCK:
+            npj.project_backward(pts, Kn, En, *ctx.consts, g, out)
+        return torch.from_numpy(out).to(grad.dtype), None, None, None, None, None
+
+
+def project_fused(points: Tensor, K: Tensor, world_2_cam: Tensor, strand_width: float, dilation: float,
+                  near: float) -> tuple[Tensor, Tensor, Tensor]:
+    """The numba twin of :func:`vid2haircut.render.gaussians.segment_gaussians` + :func:`gaussian_table`.
+
+    Args:
+        points: [B, N, P, 3] CPU float32 / float64 world points; K [B, 3, 3], world_2_cam [B, 4, 4]
+            (no gradients reach them).
+
+    Returns:
+        (table [B * S, 8] differentiable w.r.t. ``points`` (see :func:`gaussian_table`), covs
+        [B * S, 3], valid [B * S] bool), S = N * (P - 1), segments strand-major per frame.
+    """
+    return _FusedProject.apply(points, K, world_2_cam, float(strand_width), float(dilation), float(near))
 
 
 class _FusedComposite(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means, qxx, qxy, qyy, z, dirs, zs, plan):
+    def forward(ctx, table, zs, plan):
         from vid2haircut.render import numba_kernels as nk
 
-        gpar = _gpar(means, qxx, qxy, qyy, z, dirs)
+        gpar = table.detach().contiguous().numpy()
         zs_np = zs.detach().contiguous().numpy()
         B, H, W = plan.shape
         out = np.zeros((B, H, W, 4 if plan.nbins > 1 else 1), zs_np.dtype)
         maxw = np.zeros(plan.sorted_g.shape[0])
         cap = plan.capacity
-        elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap), np.empty(cap))
+        elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, gpar.dtype), np.empty(cap, gpar.dtype))
         e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
-        visible = np.zeros(means.shape[0], np.bool_)
+        visible = np.zeros(gpar.shape[0], np.bool_)
         with _LOCK:
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                  plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                  TILE, plan.offsets, elems, e_range, out, maxw)
             if plan.nbins > 1:
                 nk.reduce_visibility(plan.gstart, plan.inst_pos, maxw, plan.vis_weight, visible)
-        ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, means.dtype
+        ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
         visible_t = torch.from_numpy(visible)
         ctx.mark_non_differentiable(visible_t)
         return torch.from_numpy(out), visible_t
@@ -147,17 +195,12 @@ class _FusedComposite(torch.autograd.Function):
             nk.composite_backward(ctx.gpar, plan.consts, plan.nbins, plan.tile_start, plan.sorted_g,
                                   plan.work_start, plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, acc)
             nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
-        gt = torch.from_numpy(grads).to(ctx.dtype)
-        shading = plan.nbins > 1
-        return (gt[:, 0:2], gt[:, 2], gt[:, 3], gt[:, 4], gt[:, 5] if shading else None,
-                gt[:, 6:8] if shading else None, None, None)
+        return torch.from_numpy(grads).to(ctx.dtype), None, None
 
 
 def composite_fused(
-    means: Tensor,  # [G, 2]
+    table: Tensor,  # [G, 8]
     covs: Tensor,  # [G, 3]
-    depths: Tensor,  # [G]
-    dirs: Tensor,  # [G, 2]
     valid: Tensor,  # [G] bool
     frame: Tensor,  # [G] int64
     batch: int,
@@ -169,24 +212,27 @@ def composite_fused(
 ) -> tuple[PixelSums, Tensor]:
     """Composite G Gaussians (flattened over frames) into per-pixel sums with the fused CPU kernels.
 
-    Same contract as :func:`vid2haircut.render.raster.composite` (which takes a footprint instead
-    of ``valid``, ``frame`` and ``power_min`` = log(alpha_min / opacity)).
+    Same contract as :func:`vid2haircut.render.raster.composite`, but the Gaussians come as the
+    differentiable [G, 8] table of :func:`gaussian_table` (or :func:`project_fused`) and their
+    covariances, and ``valid``, ``frame`` and ``power_min`` = log(alpha_min / opacity) replace the
+    footprint.
 
     Returns:
         (:class:`PixelSums` with [B, H, W] fields, visible [G] bool).
     """
-    dt = means.dtype
-    win = gaussian_windows(means, covs, valid, height, width, power_min)  # the torch backend's windows
+    dt = table.dtype
+    means = table[:, 0:2].detach()
+    win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)  # the torch backend's windows
     wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
                         win.ntv * win.rows], 1).contiguous().numpy()
     wflt = torch.stack([win.slope, win.v0], 1).contiguous().numpy()
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
-        head = head_depth.detach().to(dt).to(torch.float64).contiguous().numpy()
-    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), head, consts, batch, height, width)
-    qxx, qxy, qyy = conics(covs)
-    zs = depths.detach() * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
-    out, visible = _FusedComposite.apply(means, qxx, qxy, qyy, depths, dirs, zs, plan)
+        head = head_depth.detach().to(dt).contiguous().numpy()
+    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), head, consts, batch, height, width,
+                 np.float32 if dt == torch.float32 else np.float64)
+    zs = table[:, 5].detach() * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
+    out, visible = _FusedComposite.apply(table, zs, plan)
     log_t = out[..., 0]
     weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
     if not consts.shading:

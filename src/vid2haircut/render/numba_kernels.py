@@ -34,8 +34,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from vid2haircut.render.numba_walk import (BIG, C_AMAX, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT, bin_sums,
-                                           gradient_table, tile_box, walk, weight_table)
+from vid2haircut.render.numba_lines import fold_zref, load_head, walk_lines
+from vid2haircut.render.numba_walk import (BIG, C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
+                                           alpha_and_l, bin_sums, gradient_table, tile_box, weight_table)
 
 N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
@@ -59,31 +60,39 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
     """Forward compositing of all tiles.
 
     Args:
-        gpar: [G, 8] float64 (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a). zs: [G] z / depth_bin
-            (input dtype). wint, wflt: window tables (:mod:`.numba_tiles`). head: [B, H, W] float64
-            head depth (used when ``has_head``). consts: [3] (log opacity, alpha_min, alpha_max).
+        gpar: [G, 8] (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a) in the input dtype, the
+            lane dtype of the walk and of alpha and l. zs: [G] z / depth_bin (same dtype). wint,
+            wflt: window tables (:mod:`.numba_tiles`). head: [B, H, W] head depth (same dtype;
+            used when ``has_head``). consts: [3] (log opacity, alpha_min, alpha_max).
         nbins: depth bins (1: silhouette only). tile_start, sorted_g: instances per tile;
         work_start, work_tiles: tiles per worker (:func:`.numba_tiles.assign_tiles`).
-        offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`).
-        elems: (pixel int32, bin int32, alpha float64, l float64) element arrays, filled.
+        offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`,
+            plus ``tile`` slots of slack for the walk's compaction).
+        elems: (pixel int32, bin int32, alpha, l (input dtype)) element arrays, filled.
         e_range: [n_instances, 2] filled with the element range of each instance.
         out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (C = 1:
         sum l only). maxw: [n_instances] filled with each instance's largest weight.
     """
     e_p, e_bin, e_al, e_la = elems
+    L = tile
     for wk in prange(work_start.shape[0] - 1):
+        hl, zref2 = np.empty(2 * L * L, zs.dtype), np.empty(2 * L * L, zs.dtype)
+        lane, pw, hf = np.empty((3, L), zs.dtype), np.empty(L, zs.dtype), np.empty(L, zs.dtype)
+        vlo, vhi = np.empty(L, np.int32), np.empty(L, np.int32)
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
             b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
             tw = x1 - x0 + 1
             npx = tw * (y1 - y0 + 1)
             i0, i1 = tile_start[t], tile_start[t + 1]
-            zref = np.full(npx, np.inf, zs.dtype)
-            hloc = np.empty(npx if has_head else 0)
-            for p in range(hloc.shape[0]):
-                hloc[p] = head[b, y0 + p // tw, x0 + p % tw]
-            walk(i0, i1, sorted_g, wint, wflt, gpar, zs, hloc, has_head, consts, x0, x1, y0, y1, zref, nbins > 1,
-                 e_p, e_al, e_la, offsets[t], e_range)
+            load_head(head, has_head, b, x0, y0, width, height, L, hl)
+            off = offsets[t]
+            n = walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, nbins > 1,
+                           lane, vlo, vhi, pw, hf, e_p, e_al, e_la, off, e_range)
+            alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
+            zref = np.empty(npx, zs.dtype)
+            if nbins > 1:
+                fold_zref(zref2, zref, x1, x0, y1, y0, L)
             Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, True)
             acc = np.zeros((4, npx))
             for bb in range(nb):  # sum of l, in bin order

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from vid2haircut.render.numba_math import vexp, vlog
+from vid2haircut.render.numba_math import lane_cast, lane_exp, lane_log1m, vexp
 from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart
 
 JIT = dict(cache=True, error_model="numpy")
@@ -65,82 +65,18 @@ def tile_bounds(tile_start, sorted_g, wint, width, height, tile):
 
 
 @njit(**JIT)
-def walk(i0, i1, sorted_g, wint, wflt, gpar, zs, hloc, has_head, consts, x0, x1, y0, y1, zref, with_zref,
-         e_p, e_al, e_la, off, e_range):
-    """Walk the windows of instances i0:i1: z_ref over the whole windows (when ``with_zref``), and
-    the elements with alpha > 0 into e_*[off:off + n], instance k's at e_range[k, 0]:e_range[k, 1];
-    returns n.
-
-    Elements are kept in the rows of each column inside the ellipse power > log(alpha_min) - 1e-3
-    (roots of the quadratic) that the head does not hide; alpha > alpha_min is then tested
-    exactly (the few elements that fail it stay, with alpha = l = 0: they add nothing). The
-    element slots must hold the window elements (:func:`tile_bounds`): every window row is
-    written once before the slot pointer decides whether it stays.
-    """
-    tw = x1 - x0 + 1
-    log_op, amin, amax = consts[C_LOGOP], consts[C_AMIN], consts[C_AMAX]
-    c2 = 2.0 * (log_op - (math.log(amin) - 1e-3))  # power > cut  <=>  quadratic form < c2
-    n = off
-    for k in range(i0, i1):
-        e_range[k, 0] = n
-        e_range[k, 1] = n
-        g = sorted_g[k]
-        hz, ua, ub, tv0, tv1 = _window_cols(g, wint, x0, x1, y0, y1)
-        h, sl, v0, zg = wint[g, W_HGT], wflt[g, W_SLOPE], wflt[g, W_V0], zs[g]
-        z, qxy = gpar[g, G_Z], gpar[g, G_QXY]
-        if hz:  # u = x, v = y; pixel index in the tile = u * su + v * sv + off_p
-            mu, mv, qu, qv, su, sv = gpar[g, G_MX], gpar[g, G_MY], gpar[g, G_QXX], gpar[g, G_QYY], 1, tw
-        else:
-            mu, mv, qu, qv, su, sv = gpar[g, G_MY], gpar[g, G_MX], gpar[g, G_QYY], gpar[g, G_QXX], tw, 1
-        ok = qv > 0.0  # else degenerate: z_ref only
-        iqv = 1.0 / qv if ok else 0.0
-        slope_c = qxy * iqv
-        off_p = -(y0 * tw + x0)
-        for u in range(ua, ub + 1):
-            vs = vstart(sl, u, v0)
-            va, vb = max(vs, tv0), min(vs + h - 1, tv1)
-            if vb < va:
-                continue
-            pu = u * su + off_p
-            du = u - mu
-            disc = (qxy * du) ** 2 - qv * (qu * du * du - c2)
-            lo, hi = vb + 1, vb  # ellipse rows of the column (empty unless disc > 0)
-            if disc > 0.0 and ok:
-                r = math.sqrt(disc) * iqv
-                cen = mv - slope_c * du
-                lo = int(math.ceil(max(cen - r, va)))
-                hi = int(math.floor(min(cen + r, vb)))
-            qa = qu * du * du
-            qb = 2.0 * qxy * du
-            # branch free over the window rows (only the ellipse rows without z_ref): every row
-            # updates z_ref and is written as a candidate at slot n, which only advances for
-            # ellipse rows the head does not hide (unsigned indices: no wraparound code)
-            for v in range(va if with_zref else lo, (vb if with_zref else hi) + 1):
-                i = np.uint64(pu + v * sv)
-                if with_zref:
-                    zref[i] = min(zref[i], zg)
-                hf = 1.0  # head factor: 0 where the head is in front
-                if has_head:
-                    hf = min(max((hloc[i] - z) * BIG, 0.0), 1.0)
-                dv = v - mv
-                nu = np.uint64(n)
-                # candidate: power in e_al, head factor in e_la (alpha and l follow in one vector loop)
-                e_p[nu], e_al[nu], e_la[nu] = pu + v * sv, log_op - 0.5 * (qa + qb * dv + qv * dv * dv), hf
-                n += 1 if (v >= lo and v <= hi and hf > 0.0) else 0
-        e_range[k, 1] = n
-    _alpha_and_l(e_al[off:n], e_la[off:n], amin, amax)
-    return n - off
-
-
-@njit(**JIT)
-def _alpha_and_l(pw, hf, amin, amax):
+def alpha_and_l(pw, hf, amin, amax):
     """In place: power -> alpha = min(exp(power), alpha_max) if > alpha_min else 0, times the head
-    factor; head factor -> l = log(1 - alpha). A branch-free loop that LLVM vectorises."""
+    factor; head factor -> l = log(1 - alpha). A branch-free loop that LLVM vectorises, in the
+    dtype of the arrays (float32 or float64)."""
+    if pw.shape[0] == 0:
+        return
+    lo, hi, zero = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0])
     for i in range(pw.shape[0]):
-        al = min(vexp(pw[i]), amax)
-        al = (al if al > amin else 0.0) * hf[i]
+        al = min(lane_exp(pw[i]), hi)
+        al = (al if al > lo else zero) * hf[i]
         pw[i] = al
-        hf[i] = vlog(1.0 - al)
+        hf[i] = lane_log1m(al)
 
 
 @njit(**JIT)
