@@ -104,6 +104,23 @@ def test_numba_backend_is_deterministic_for_any_thread_count():
         assert torch.equal(ga, gb)
 
 
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_walk_compaction_by_loop_equals_compress(dtype, monkeypatch):
+    """The window walk's two ways of appending the kept lanes (AVX-512 compress, or the loop used
+    on other CPUs) give identical renders and gradients."""
+    from vid2haircut.render import numba_math
+
+    runs = []
+    for compress in (False, True):
+        monkeypatch.setattr(numba_math, "HAS_COMPRESS", compress)
+        runs.append(_render_and_grad("numba", dtype))
+    (a, ga), (b, gb) = runs
+    for x, y in zip(a[:7], b[:7]):
+        assert torch.equal(x, y)
+    assert torch.equal(ga, gb)
+
+
 def test_backend_choice():
     pts = torch.zeros(1, 1, 2, 3)
     assert resolve_backend("torch", pts) == "torch"

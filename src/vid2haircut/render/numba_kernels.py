@@ -56,7 +56,7 @@ def _pixel_xy(x0, x1, y0, y1):
 
 @njit(**_PAR)
 def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g,
-                      work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, maxw):
+                      work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, maxw, compress):
     """Forward compositing of all tiles.
 
     Args:
@@ -72,13 +72,14 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
         e_range: [n_instances, 2] filled with the element range of each instance.
         out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (C = 1:
         sum l only). maxw: [n_instances] filled with each instance's largest weight.
+        compress: the walk's compaction (:func:`.numba_lines.walk_lines`); ``tile`` must be 16.
     """
     e_p, e_bin, e_al, e_la = elems
     L = tile
     for wk in prange(work_start.shape[0] - 1):
         hl, zref2 = np.empty(2 * L * L, zs.dtype), np.empty(2 * L * L, zs.dtype)
         lane, pw, hf = np.empty((3, L), zs.dtype), np.empty(L, zs.dtype), np.empty(L, zs.dtype)
-        vlo, vhi = np.empty(L, np.int32), np.empty(L, np.int32)
+        vlo, vhi, km, pix = np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32)
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
             b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
@@ -88,7 +89,7 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             load_head(head, has_head, b, x0, y0, width, height, L, hl)
             off = offsets[t]
             n = walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, nbins > 1,
-                           lane, vlo, vhi, pw, hf, e_p, e_al, e_la, off, e_range)
+                           lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress)
             alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
             zref = np.empty(npx, zs.dtype)
             if nbins > 1:

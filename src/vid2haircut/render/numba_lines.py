@@ -26,7 +26,7 @@ import math
 import numpy as np
 from numba import njit
 
-from vid2haircut.render.numba_math import lane_cast
+from vid2haircut.render.numba_math import compress16, lane_cast
 from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
@@ -90,7 +90,7 @@ def load_head(head, has_head, b, x0, y0, width, height, L, hl):
 
 @njit(**_INL)
 def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, with_zref,
-               lane, vlo, vhi, pw, hf, e_p, e_al, e_la, off, e_range):
+               lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress):
     """Walk the windows of instances i0:i1 line by line: z_ref over the whole windows into both
     layouts of ``zref2`` [2 L L] (when ``with_zref``; filled with +inf first), and the candidate
     elements into e_*[off:off + n] (pixel, power, head factor), instance k's at
@@ -100,9 +100,11 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     head does not hide; alpha > alpha_min is then tested exactly by
     :func:`vid2haircut.render.numba_walk.alpha_and_l` (the few candidates that fail it stay, with
     alpha = l = 0: they add nothing). The element slots must hold the window elements
-    (:func:`vid2haircut.render.numba_walk.tile_bounds`) plus L: the compaction writes every lane
-    of a line before the slot pointer decides whether it stays.
-    ``lane`` [3, L], vlo / vhi [L] int32, pw / hf [L] (lane dtype) are scratch.
+    (:func:`vid2haircut.render.numba_walk.tile_bounds`) plus L: the compaction may write a line's
+    lanes past the last kept one.
+    ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
+    ``compress``: append the kept lanes with :func:`vid2haircut.render.numba_math.compress16` (pass
+    ``numba_math.HAS_COMPRESS``) instead of a loop; the same elements either way.
     """
     tw = x1 - x0 + 1
     cut = lane_cast(math.log(consts[1]) - 1e-3, zs[0])  # power > cut: inside the ellipse
@@ -130,20 +132,31 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
                     ii = np.uint64(i)
                     zr = zref2[base + ii]
                     zref2[base + ii] = zg if (rr >= vlo[ii]) & (rr <= vhi[ii]) & (zg < zr) else zr
+            pr = r * sr
+            ifirst, ilast = np.int32(L), np.int32(-1)
             for i in range(L):
                 ii = np.uint64(i)
                 p = logop - half * (lane[L_QA, ii] + dv * (lane[L_QB, ii] + qv * dv))
                 f = min(max((hl[base + ii] - z) * big, zero), one)  # head factor: 0 where the head is in front
+                kept = (rr >= vlo[ii]) & (rr <= vhi[ii]) & (p > cut) & keep_any & (f > zero)
                 pw[ii] = p
-                hf[ii] = f if (rr >= vlo[ii]) & (rr <= vhi[ii]) & (p > cut) & keep_any else zero
-            pr = r * sr
-            for i in range(L):  # compaction: every lane is written, the slot advances for the kept ones
-                ii = np.uint64(i)
-                nu = np.uint64(n)
-                e_p[nu] = pr + i * si
-                e_al[nu] = pw[ii]
-                e_la[nu] = hf[ii]
-                n += 1 if hf[ii] > zero else 0
+                hf[ii] = f
+                km[ii] = np.int32(kept)
+                pix[ii] = np.int32(pr + i * si)
+                ifirst = min(ifirst, np.int32(i)) if kept else ifirst
+                ilast = max(ilast, np.int32(i)) if kept else ilast
+            if compress:  # AVX-512: one compress instruction per array
+                compress16(e_al, np.uint64(n), pw, km)
+                compress16(e_la, np.uint64(n), hf, km)
+                n += compress16(e_p, np.uint64(n), pix, km)
+            else:  # branch free over the lanes from the first to the last kept one
+                for i in range(ifirst, ilast + 1):
+                    ii = np.uint64(i)
+                    nu = np.uint64(n)
+                    e_p[nu] = pix[ii]
+                    e_al[nu] = pw[ii]
+                    e_la[nu] = hf[ii]
+                    n += km[ii]
         e_range[k, 1] = n
     return n - off
 

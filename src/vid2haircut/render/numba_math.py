@@ -15,7 +15,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import llvmlite.binding as _llvm
+from llvmlite import ir as _ir
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
 _LN2_HI = 6.93147180369123816490e-01
@@ -159,3 +162,49 @@ def _lane_cast(x, like):
     if like == types.float32:
         return lambda x, like: np.float32(x)
     return lambda x, like: np.float64(x)
+
+
+
+def _host_has_avx512() -> bool:
+    """True when the CPU numba compiles for has AVX-512F (vcompress: :func:`compress16` is one
+    instruction; elsewhere LLVM expands it lane by lane, and the callers use a loop instead)."""
+    try:
+        return bool(_llvm.get_host_cpu_features().get("avx512f", False))
+    except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable loop)
+        return False
+
+
+HAS_COMPRESS = _host_has_avx512()
+"""Whether :func:`compress16` compiles to AVX-512 compress instructions on this machine (read by
+numba as a compile-time constant; the kernels' disk cache is per CPU, so it cannot go stale)."""
+
+
+@intrinsic
+def compress16(typingctx, dst, dst_off, src, mask):
+    """Append the 16 lanes src[0:16] whose mask[i] != 0, in lane order, at dst[dst_off]; return how
+    many (int64). dst / src: 1-D arrays of one dtype (src holds at least 16 values, dst at least
+    dst_off + 16); mask: 1-D int32 array of at least 16 values (numba only; LLVM's
+    masked.compressstore)."""
+    sig = types.int64(dst, types.uint64, src, mask)
+
+    def codegen(context, builder, signature, args):
+        dst_v, off, src_v, m_v = args
+        elt = context.get_value_type(signature.args[0].dtype)
+        melt = context.get_value_type(signature.args[3].dtype)
+        d = context.make_array(signature.args[0])(context, builder, dst_v).data
+        s_ = context.make_array(signature.args[2])(context, builder, src_v).data
+        m = context.make_array(signature.args[3])(context, builder, m_v).data
+        vt, mvt = _ir.VectorType(elt, 16), _ir.VectorType(melt, 16)
+        val = builder.load(builder.bitcast(s_, vt.as_pointer()), align=4)
+        bits = builder.icmp_unsigned("!=", builder.load(builder.bitcast(m, mvt.as_pointer()), align=4),
+                                     _ir.Constant(mvt, None))
+        name = {_ir.FloatType(): "v16f32", _ir.DoubleType(): "v16f64"}.get(elt, f"v16i{getattr(elt, 'width', 32)}")
+        store = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.VoidType(), [vt, elt.as_pointer(),
+                                                                                                bits.type]),
+                                               f"llvm.masked.compressstore.{name}")
+        builder.call(store, [val, builder.gep(d, [off], inbounds=True), bits])
+        ctpop = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.IntType(16), [_ir.IntType(16)]),
+                                               "llvm.ctpop.i16")
+        return builder.zext(builder.call(ctpop, [builder.bitcast(bits, _ir.IntType(16))]), _ir.IntType(64))
+
+    return sig, codegen
