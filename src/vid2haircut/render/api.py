@@ -141,10 +141,11 @@ def render_strands(
     flat = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2))
     power_min = math.log(alpha_min) - log_op
     if use_numba:
-        if table is None:
+        torch_projection = table is None
+        if torch_projection:
             table = gaussian_table(*flat)
         sums, visible = composite_fused(table, flat[1], g.valid.reshape(G), frame, B, height, width, consts, power_min,
-                                        head_depth)
+                                        head_depth, torch_windows=torch_projection)
     else:
         fp = build_footprint(flat[0], flat[1], g.valid.reshape(G), frame, height, width, power_min)
         sums, visible = composite(*flat, fp, B, height, width, consts, head_depth)

@@ -210,23 +210,35 @@ def composite_fused(
     consts: KernelConsts,
     power_min: float,
     head_depth: Tensor | None = None,  # [B, H, W]
+    torch_windows: bool = False,
 ) -> tuple[PixelSums, Tensor]:
     """Composite G Gaussians (flattened over frames) into per-pixel sums with the fused CPU kernels.
 
     Same contract as :func:`vid2haircut.render.raster.composite`, but the Gaussians come as the
     differentiable [G, 8] table of :func:`gaussian_table` (or :func:`project_fused`) and their
     covariances, and ``valid``, ``frame`` and ``power_min`` = log(alpha_min / opacity) replace the
-    footprint.
+    footprint. ``torch_windows``: take the pixel windows from the torch backend's
+    :func:`vid2haircut.render.footprint.gaussian_windows` (bit for bit its windows: for Gaussians
+    projected by torch) instead of :func:`vid2haircut.render.numba_tiles.gaussian_windows`.
 
     Returns:
         (:class:`PixelSums` with [B, H, W] fields, visible [G] bool).
     """
+    from vid2haircut.render import numba_tiles
+
     dt = table.dtype
     means = table[:, 0:2].detach()
-    win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)  # the torch backend's windows
-    wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
-                        win.ntv * win.rows], 1).contiguous().numpy()
-    wflt = torch.stack([win.slope, win.v0], 1).contiguous().numpy()
+    if torch_windows:
+        win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)
+        wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
+                            win.ntv * win.rows], 1).contiguous().numpy()
+        wflt = torch.stack([win.slope, win.v0], 1).contiguous().numpy()
+    else:
+        G = means.shape[0]
+        wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
+        with _LOCK:
+            numba_tiles.gaussian_windows(means.contiguous().numpy(), covs.detach().contiguous().numpy(),
+                                         valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
         head = head_depth.detach().to(dt).contiguous().numpy()

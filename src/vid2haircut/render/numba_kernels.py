@@ -13,20 +13,21 @@ a fixed order (instances of a tile by Gaussian index, elements in window order, 
 results reduced per Gaussian in instance order): results do not depend on the number of threads.
 Per tile, forward (:func:`composite_forward`):
 
- 1. one walk of the windows (:func:`.numba_walk.walk`): z_ref over every window pixel, and the
-    elements (ellipse rows not hidden by the head) with their power; then alpha and l in one
-    vectorised loop (:mod:`.numba_math`);
+ 1. one walk of the windows, line by line (:func:`.numba_lines.walk_lines`): z_ref over every
+    window pixel, and the elements (ellipse pixels not hidden by the head) with their power; then
+    alpha, l and d l / d power in one vectorised loop (:func:`.numba_walk.alpha_and_l`);
  2. bins and Lb(b, p) = sum of l per (bin, pixel);
  3. -M(b, p) = -exp(Lx) expm1(Lb) / Lb (:func:`vid2haircut.render.bins.weight_table`);
  4. w = -M l; per pixel sums of w z, w cos2a, w sin2a; largest w per instance (visibility).
 
-The elements (pixel, bin, alpha, l) stay in flat arrays at per-tile offsets (sized by the tile's
+The elements (pixel, bin, d l / d power, l) stay in flat arrays at per-tile offsets (sized by the tile's
 window element count, an upper bound; about a third is used), and the backward pass
 (:func:`composite_backward`) starts from them: Lb and -M again (same order, same values), then
 A. q = dL/dw, per instance dL/dz, dL/dc, dL/ds and G(b, p) = sum of q l; B. dL/dLb
 (:func:`vid2haircut.render.bins.gradient_table`); C. per element dL/dpower and per instance its
 moments sum gp (dx, dy, dx^2, dx dy, dy^2), turned into dL/d(mean, conic) by
-:func:`reduce_gradients`. Internal sums are float64; outputs have the input dtype.
+:func:`reduce_gradients`. Per-element values have the input dtype, internal sums are float64;
+outputs have the input dtype.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ import numpy as np
 from numba import njit, prange
 
 from vid2haircut.render.numba_lines import fold_zref, load_head, walk_lines
-from vid2haircut.render.numba_walk import (BIG, C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
+from vid2haircut.render.numba_walk import (C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
                                            alpha_and_l, bin_sums, gradient_table, tile_box, weight_table)
 
 N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
@@ -68,7 +69,7 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
         work_start, work_tiles: tiles per worker (:func:`.numba_tiles.assign_tiles`).
         offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`,
             plus ``tile`` slots of slack for the walk's compaction).
-        elems: (pixel int32, bin int32, alpha, l (input dtype)) element arrays, filled.
+        elems: (pixel int32, bin int32, d l / d power, l (input dtype)) element arrays, filled.
         e_range: [n_instances, 2] filled with the element range of each instance.
         out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (C = 1:
         sum l only). maxw: [n_instances] filled with each instance's largest weight.
@@ -129,8 +130,7 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
             filled by) :func:`composite_forward`.
         acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``).
     """
-    e_p, e_bin, e_al, e_la = elems
-    amax = consts[C_AMAX]
+    e_p, e_bin, e_dl, e_la = elems
     for wk in prange(work_start.shape[0] - 1):
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
@@ -168,10 +168,8 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
                 s0 = s1 = s2 = s3 = s4 = 0.0
                 for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
                     p, bn = np.uint64(e_p[e]), np.uint64(e_bin[e])
-                    al = e_al[e]
                     q = gl[1, p] * z + gl[2, p] * c + gl[3, p] * s  # d loss / d w
-                    step = min(max((amax - al) * BIG, 0.0), 1.0)  # 0 where alpha was clamped
-                    gp = (H[bn, p] + q * negM[bn, p]) * al / (al - 1.0) * step
+                    gp = (H[bn, p] + q * negM[bn, p]) * e_dl[e]  # d l / d power, 0 where alpha was clamped
                     dx, dy = px[p] - mx, py[p] - my
                     s0 += gp * dx
                     s1 += gp * dy

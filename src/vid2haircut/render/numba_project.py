@@ -102,11 +102,12 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     S = N * (P - 1)
     w2 = float(strand_width) * float(strand_width)
+    Rs = w2c[:, :3, :3].astype(np.float64)
+    ts = w2c[:, :3, 3].astype(np.float64)
     for bn in prange(B * N):
         b, n = bn // N, bn - (bn // N) * N
         k00, k01, k10, k11 = float(K[b, 0, 0]), float(K[b, 0, 1]), float(K[b, 1, 0]), float(K[b, 1, 1])
-        R = w2c[b, :3, :3].astype(np.float64)
-        t = w2c[b, :3, 3].astype(np.float64)
+        R, t = Rs[b], ts[b]
         for j in range(P):
             out[b, n, j, 0] = 0.0
             out[b, n, j, 1] = 0.0

@@ -15,6 +15,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from vid2haircut.render.footprint import COLUMN_COST
+
 # columns of the int64 window table ``wint`` [G, 4] and the float32 table ``wflt`` [G, 2]
 W_HZ, W_ULO, W_NCOL, W_HGT = 0, 1, 2, 3
 W_SLOPE, W_V0 = 0, 1
@@ -134,3 +136,70 @@ def assign_tiles(tile_start, nworkers):
             work_tiles[cursor[owner[t]]] = t
             cursor[owner[t]] += 1
     return work_start, work_tiles
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def gaussian_windows(means, covs, valid, height, width, power_min, cols, max_rows, wint, wflt):
+    """The pixel windows of :func:`vid2haircut.render.footprint.gaussian_windows`, computed here in
+    float32 in the same order of operations, straight into the window tables.
+
+    Args:
+        means: [G, 2], covs: [G, 3] (any float dtype; rounded to float32 first, as there), valid:
+            [G] bool. height, width: image size. power_min: log(alpha_min / opacity) < 0.
+        cols, max_rows: tile width and the largest tile height tried.
+        wint: [G, 4] int64, wflt: [G, 2] float32, filled (columns ``W_*``).
+
+    Returns:
+        rows, the common tile height (every window's height is a multiple of it).
+
+    torch's float32 square root is not always correctly rounded (numba's is), so a window edge
+    can differ by a pixel in rare cases: the numba backend uses these windows with its own
+    projection (:func:`vid2haircut.render.numba_backend.project_fused`), and torch's windows when
+    it composites Gaussians projected by torch.
+    """
+    G = means.shape[0]
+    f32 = np.float32
+    c2 = f32(-2.0 * power_min)
+    need = np.empty(G, np.int64)
+    ntu = np.empty(G, np.int64)
+    for g in prange(G):
+        mx, my = f32(means[g, 0]), f32(means[g, 1])
+        sxx, sxy, syy = f32(covs[g, 0]), f32(covs[g, 1]), f32(covs[g, 2])
+        hz = sxx >= syy
+        mu, mv = (mx, my) if hz else (my, mx)
+        suu, svv = (sxx, syy) if hz else (syy, sxx)
+        size_u, size_v = (f32(width), f32(height)) if hz else (f32(height), f32(width))
+        eu = np.sqrt(c2 * suu)
+        ev = np.sqrt(c2 * svv)
+        u_lo = max(np.ceil(mu - eu), f32(0.0))
+        u_hi = min(np.floor(mu + eu), size_u - f32(1.0))
+        on_image = (mv + ev >= f32(0.0)) & (mv - ev <= size_v - f32(1.0))
+        ok = valid[g] & on_image & np.isfinite(mu) & np.isfinite(eu) & np.isfinite(ev)
+        ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if ok else f32(0.0)
+        slope = sxy / suu
+        det = max(suu * svv - sxy * sxy, f32(1e-12))
+        half = np.sqrt(c2 * det / suu)
+        nt = np.int64(np.ceil(ncol / f32(cols)))
+        ntu[g] = nt
+        need[g] = np.int64(np.floor(f32(2.0) * half) + f32(1.0)) if nt > 0 else 1
+        wint[g, W_HZ] = np.int64(hz)
+        wint[g, W_ULO] = np.int64(u_lo) if ok else 0
+        wint[g, W_NCOL] = nt * cols
+        wflt[g, W_SLOPE] = slope
+        wflt[g, W_V0] = mv - slope * mu - half
+    # common tile height R minimising sum_g ntu_g * ceil(need_g / R) * (R + column cost), as in
+    # vid2haircut.render.footprint._choose_rows
+    hist = np.zeros(65)
+    for g in range(G):
+        if ntu[g] > 0:
+            hist[min(need[g], 64)] += float(ntu[g])
+    rows, best = 1, np.inf
+    for R in range(1, max_rows + 1):
+        cost = 0.0
+        for n in range(65):
+            cost += hist[n] * math.ceil(n / R) * (R + COLUMN_COST)
+        if cost < best:
+            rows, best = R, cost
+    for g in prange(G):
+        wint[g, W_HGT] = ((need[g] + rows - 1) // rows) * rows
+    return rows

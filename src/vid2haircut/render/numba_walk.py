@@ -64,18 +64,21 @@ def tile_bounds(tile_start, sorted_g, wint, width, height, tile):
     return bounds
 
 
-@njit(**JIT)
+@njit(cache=True, error_model="numpy", fastmath={"contract"})
 def alpha_and_l(pw, hf, amin, amax):
-    """In place: power -> alpha = min(exp(power), alpha_max) if > alpha_min else 0, times the head
-    factor; head factor -> l = log(1 - alpha). A branch-free loop that LLVM vectorises, in the
-    dtype of the arrays (float32 or float64)."""
+    """In place: with alpha = min(exp(power), alpha_max) if > alpha_min else 0, times the head
+    factor, and l = log(1 - alpha): power -> d l / d power = alpha / (alpha - 1) (0 where alpha is
+    clamped to alpha_max: the backward pass needs nothing else of alpha), head factor -> l.
+    A branch-free loop that LLVM vectorises, in the dtype of the arrays (float32 or float64);
+    multiply-adds may be fused (``contract``: the series of exp and log in half the instructions,
+    and no less accurate)."""
     if pw.shape[0] == 0:
         return
-    lo, hi, zero = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0])
+    lo, hi, zero, one = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0]), lane_cast(1.0, pw[0])
     for i in range(pw.shape[0]):
         al = min(lane_exp(pw[i]), hi)
         al = (al if al > lo else zero) * hf[i]
-        pw[i] = al
+        pw[i] = al / (al - one) if al < hi else zero
         hf[i] = lane_log1m(al)
 
 
