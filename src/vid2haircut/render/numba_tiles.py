@@ -84,16 +84,34 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile):
                     inst_tile[j] = (frame[g] * nty + ty) * ntx + tx
                     j += 1
     NT = nframes * nty * ntx
+    # counting sort of the instances by tile, stable (Gaussian order inside a tile), in parallel over
+    # CH chunks of instances: per-chunk tile counts, then each chunk's first slot in every tile
+    CH = 64
+    step = (n + CH - 1) // CH
+    counts = np.zeros((CH + 1, NT), np.int64)
+    for c in prange(CH):
+        for j in range(c * step, min((c + 1) * step, n)):
+            counts[c + 1, inst_tile[j]] += 1
     tile_start = np.zeros(NT + 1, np.int64)
-    for j in range(n):
-        tile_start[inst_tile[j] + 1] += 1
     for t in range(NT):
-        tile_start[t + 1] += tile_start[t]
-    cursor = tile_start[:NT].copy()
+        tot = 0
+        for c in range(CH):
+            tot += counts[c + 1, t]
+        tile_start[t + 1] = tile_start[t] + tot
+    for t in prange(NT):  # counts[c, t] := first slot of chunk c in tile t
+        cur = tile_start[t]
+        for c in range(CH):
+            k = counts[c + 1, t]
+            counts[c, t] = cur
+            cur += k
     sorted_g = np.empty(n, np.int64)
     inst_pos = np.empty(n, np.int64)
-    for g in range(G):
-        for j in range(gstart[g], gstart[g + 1]):
+    for c in prange(CH):
+        cursor = counts[c].copy()
+        g = np.searchsorted(gstart, c * step, side="right") - 1  # Gaussian of the chunk's first instance
+        for j in range(c * step, min((c + 1) * step, n)):
+            while gstart[g + 1] <= j:
+                g += 1
             pos = cursor[inst_tile[j]]
             cursor[inst_tile[j]] += 1
             sorted_g[pos] = g
