@@ -2,22 +2,30 @@
 
 Choice: ``backend="auto"`` (the default) picks these kernels for CPU tensors of dtype float32 or
 float64 when numba imports, and the torch kernels (:mod:`.raster`, :mod:`.kernels`) otherwise
-(CUDA, other dtypes, numba missing); ``"torch"`` and ``"numba"`` force one. Both visit the same
-window pixels (:func:`.footprint.gaussian_windows`, computed by torch for both: torch's float32
-sqrt is not always correctly rounded, so numba could not reproduce the windows bit for bit) and
-implement the same compositing model, so they agree to float round-off (tests/test_render.py
-checks values and gradients). Why a second backend: the torch kernels need ~13 gather/scatter
-and ~55 elementwise passes over the (Gaussian, pixel) contributions; the fused kernels
-(:mod:`.numba_kernels`) composite one screen tile at a time in cache, ~2x less CPU time for
-forward+backward (numbers in :mod:`.api`).
+(CUDA, other dtypes, numba missing); ``"torch"`` and ``"numba"`` force one. Both implement the
+same compositing model over the same kind of pixel windows (:func:`.footprint.gaussian_windows`).
+The numba backend projects the segments itself (:func:`project_fused`, :mod:`.numba_project`:
+one loop forward and one backward instead of ~40 torch operations and their autograd graph)
+and computes its windows itself (:func:`.numba_tiles.gaussian_windows`), unless K or
+world_2_cam require gradients: then it takes torch's Gaussians and torch's windows, bit for
+bit those of the torch backend (torch's float32 square root is not always correctly rounded,
+so numba's windows can differ from torch's by a pixel at an edge in rare cases). The two agree
+to float round-off (tests/test_render_backends.py checks values and gradients). Why a second
+backend: the torch kernels need ~13 gather/scatter and ~55 elementwise passes over the
+(Gaussian, pixel) contributions; the fused kernels (:mod:`.numba_kernels`) composite one screen
+tile at a time in cache, walking the windows line by line with vector lanes
+(:mod:`.numba_lines`), ~3x less time for forward+backward (numbers in :mod:`.api`).
 
-Compilation: on first use, once per machine, ~16 s for the first dtype and ~4 s for the other
+Compilation: on first use, once per machine, ~21 s for the first dtype and ~13 s for the other
 (measured, 2 cores), then cached on disk (``cache=True``: ``__pycache__`` next to the modules,
-or numba's user cache directory); loading the cache costs ~0.5 s per process.
+or numba's user cache directory); loading the cache costs ~0.5 s per process. numba's cache
+follows the source file of each compiled function, not the modules it inlines: after editing
+:mod:`.numba_math` or :mod:`.numba_lines` alone, delete the ``*.nbi`` / ``*.nbc`` files of
+``__pycache__`` (a package install or update replaces every file, so users are not affected).
 Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``; the results are
-bitwise identical for any thread count. Memory: the forward pass keeps 24 bytes per window
-element for the backward pass (~240 MB allocated for 4k strands at 256 x 256, about a third of
-it touched).
+bitwise identical for any thread count. Memory: the forward pass keeps 16 bytes per window
+element for the backward pass in float32 (24 in float64; ~160 MB allocated for 4k strands at
+256 x 256, about a third of it touched).
 """
 
 from __future__ import annotations

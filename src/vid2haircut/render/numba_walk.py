@@ -1,20 +1,19 @@
-"""Per-tile building blocks of the fused CPU compositor (numba): window walk, depth bins, bin tables.
+"""Per-tile building blocks of the fused CPU compositor (numba): element values, depth bins, bin tables.
 
-See :mod:`vid2haircut.render.numba_kernels` for the model and the pass structure. A tile's
-elements (contributions with alpha > 0) are kept in flat arrays at the tile's offset, instance
-by instance (instance k's at e_range[k, 0]:e_range[k, 1]): pixel (index inside the tile), depth
-bin, alpha and l = log(1 - alpha).
+See :mod:`vid2haircut.render.numba_kernels` for the model and the pass structure, and
+:mod:`vid2haircut.render.numba_lines` for the window walk that lists a tile's elements. They are
+kept in flat arrays at the tile's offset, instance by instance (instance k's at
+e_range[k, 0]:e_range[k, 1]): pixel (index inside the tile), depth bin, d l / d power and
+l = log(1 - alpha).
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 from numba import njit, prange
 
 from vid2haircut.render.numba_math import lane_cast, lane_exp, lane_log1m, vexp
-from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart
+from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_ULO
 
 JIT = dict(cache=True, error_model="numpy")
 BIG = 1e12  # turns a positive depth gap (> 1e-12 m) into a head factor of 1 after clamping
