@@ -27,7 +27,7 @@ import torch
 from vid2haircut.camera import intrinsics_from_fov, look_at
 from vid2haircut.render import render_strands
 from vid2haircut.render.api import DEFAULT_ALPHA_MIN
-from vid2haircut.render.footprint import build_footprint, gaussian_windows
+from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import segment_gaussians
 from vid2haircut.render.numba_backend import TILE, resolve_backend
 
@@ -121,11 +121,12 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
 def windows_and_tiles(means, covs, valid, frame, height, width, power_min):
     """The numba backend's setup: pixel windows, then instances per screen tile."""
     from vid2haircut.render.numba_tiles import bin_windows
+    from vid2haircut.render.numba_tiles import gaussian_windows as numba_windows
 
-    win = gaussian_windows(means, covs, valid, height, width, power_min)
-    wint = torch.stack([win.horizontal.long(), win.u_lo.long(), win.ntu * win.cols, win.ntv * win.rows], 1)
-    wflt = torch.stack([win.slope, win.v0], 1)
-    return bin_windows(wint.numpy(), wflt.numpy(), frame.numpy(), 1, width, height, TILE)
+    G = means.shape[0]
+    wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
+    numba_windows(means.numpy(), covs.numpy(), valid.numpy(), height, width, power_min, 4, 8, wint, wflt)
+    return bin_windows(wint, wflt, frame.numpy(), 1, width, height, TILE)
 
 
 def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str = "auto") -> None:
@@ -133,12 +134,20 @@ def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str 
     pts, K, E, hd = setup(n_strands, size, 1, device)
     G = pts.shape[1] * (pts.shape[2] - 1)
     frame = torch.zeros(G, dtype=torch.int64, device=device)
-    t_g = best_ms(lambda: segment_gaussians(pts, K, E), device, repeat)
-    g = segment_gaussians(pts, K, E)
-    args = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame, size, size, math.log(DEFAULT_ALPHA_MIN))
-    if backend == "numba":  # pixel windows + screen-tile binning
-        t_fp = best_ms(lambda: windows_and_tiles(*args), device, repeat)
+    power_min = math.log(DEFAULT_ALPHA_MIN)
+    if backend == "numba":  # the fused projection, then pixel windows + screen-tile binning
+        from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH
+        from vid2haircut.render.numba_backend import project_fused
+
+        proj = (pts, K, E, DEFAULT_STRAND_WIDTH, DEFAULT_DILATION, 1e-2)
+        t_g = best_ms(lambda: project_fused(*proj), device, repeat)
+        table, covs, valid = project_fused(*proj)
+        t_fp = best_ms(lambda: windows_and_tiles(table[:, :2], covs, valid, frame, size, size, power_min), device,
+                       repeat)
     else:
+        t_g = best_ms(lambda: segment_gaussians(pts, K, E), device, repeat)
+        g = segment_gaussians(pts, K, E)
+        args = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame, size, size, power_min)
         t_fp = best_ms(lambda: build_footprint(*args), device, repeat)
     pts.requires_grad_(True)
 
