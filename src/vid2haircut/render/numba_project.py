@@ -26,6 +26,45 @@ _PAR = dict(cache=True, parallel=True, error_model="numpy")
 G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_Z, G_C, G_S = range(8)
 
 
+@njit(cache=True, inline="always")
+def _segment(points, b, n, j, R, t, k00, k01, k10, k11, near, w2, dilation, eps_l):
+    """The EWA projection of segment j of strand n in frame b (R, t: the camera's rotation and
+    translation; every argument and result in one float dtype). Returns the camera-frame midpoint
+    (mx, my, mz) and segment (dx, dy, dz), zc = max(mz, near), iz = 1 / zc, X = mx iz, Y = my iz,
+    the projected segment (ja, jb), the world segment (sx, sy, sz) with len2e = |s|^2 + eps_l,
+    coef = 1/4 - w^2 / len2e and the covariance (sxx, sxy, syy)."""
+    one = near / near
+    p0x, p0y, p0z = points[b, n, j, 0], points[b, n, j, 1], points[b, n, j, 2]
+    p1x, p1y, p1z = points[b, n, j + 1, 0], points[b, n, j + 1, 1], points[b, n, j + 1, 2]
+    half = one / (one + one)
+    mwx, mwy, mwz = half * (p1x + p0x), half * (p1y + p0y), half * (p1z + p0z)
+    sx, sy, sz = p1x - p0x, p1y - p0y, p1z - p0z
+    mx = R[0, 0] * mwx + R[0, 1] * mwy + R[0, 2] * mwz + t[0]
+    my = R[1, 0] * mwx + R[1, 1] * mwy + R[1, 2] * mwz + t[1]
+    mz = R[2, 0] * mwx + R[2, 1] * mwy + R[2, 2] * mwz + t[2]
+    dx = R[0, 0] * sx + R[0, 1] * sy + R[0, 2] * sz
+    dy = R[1, 0] * sx + R[1, 1] * sy + R[1, 2] * sz
+    dz = R[2, 0] * sx + R[2, 1] * sy + R[2, 2] * sz
+    zc = max(mz, near)
+    iz = one / zc
+    X, Y = mx * iz, my * iz
+    a0 = iz * (dx - X * dz)
+    a1 = iz * (dy - Y * dz)
+    ja = k00 * a0 + k01 * a1
+    jb = k10 * a0 + k11 * a1
+    iz2 = iz * iz
+    m00, m01, m11 = iz2 * (one + X * X), iz2 * X * Y, iz2 * (one + Y * Y)
+    r00, r01 = k00 * m00 + k01 * m01, k00 * m01 + k01 * m11
+    r10, r11 = k10 * m00 + k11 * m01, k10 * m01 + k11 * m11
+    jj00, jj01, jj11 = r00 * k00 + r01 * k01, r00 * k10 + r01 * k11, r10 * k10 + r11 * k11
+    len2e = sx * sx + sy * sy + sz * sz + eps_l
+    coef = half * half - w2 / len2e
+    sxx = w2 * jj00 + coef * ja * ja + dilation
+    sxy = w2 * jj01 + coef * ja * jb
+    syy = w2 * jj11 + coef * jb * jb + dilation
+    return (mx, my, mz, dx, dy, dz, zc, iz, X, Y, ja, jb, sx, sy, sz, len2e, coef, sxx, sxy, syy)
+
+
 @njit(**_PAR)
 def project_forward(points, K, w2c, strand_width, dilation, near, gpar, covs, valid):
     """Screen-space Gaussians of every segment.
@@ -41,44 +80,20 @@ def project_forward(points, K, w2c, strand_width, dilation, near, gpar, covs, va
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     S = N * (P - 1)
     z0 = points[0, 0, 0, 0] * 0  # zero of the dtype
-    half, one, quarter = lane_cast(0.5, z0), lane_cast(1.0, z0), lane_cast(0.25, z0)
     w2 = lane_cast(strand_width, z0) * lane_cast(strand_width, z0)
     dil, nr = lane_cast(dilation, z0), lane_cast(near, z0)
     tiny, eps_d, eps_l = lane_cast(1e-12, z0), lane_cast(1e-12, z0), lane_cast(1e-20, z0)
     for bn in prange(B * N):
         b, n = bn // N, bn - (bn // N) * N
         k00, k01, k02, k10, k11, k12 = K[b, 0, 0], K[b, 0, 1], K[b, 0, 2], K[b, 1, 0], K[b, 1, 1], K[b, 1, 2]
+        R, t = w2c[b, :3, :3], w2c[b, :3, 3]
         for j in range(P - 1):
             g = b * S + n * (P - 1) + j
-            p0x, p0y, p0z = points[b, n, j, 0], points[b, n, j, 1], points[b, n, j, 2]
-            p1x, p1y, p1z = points[b, n, j + 1, 0], points[b, n, j + 1, 1], points[b, n, j + 1, 2]
-            mwx, mwy, mwz = half * (p1x + p0x), half * (p1y + p0y), half * (p1z + p0z)
-            sx, sy, sz = p1x - p0x, p1y - p0y, p1z - p0z
-            mx = w2c[b, 0, 0] * mwx + w2c[b, 0, 1] * mwy + w2c[b, 0, 2] * mwz + w2c[b, 0, 3]
-            my = w2c[b, 1, 0] * mwx + w2c[b, 1, 1] * mwy + w2c[b, 1, 2] * mwz + w2c[b, 1, 3]
-            mz = w2c[b, 2, 0] * mwx + w2c[b, 2, 1] * mwy + w2c[b, 2, 2] * mwz + w2c[b, 2, 3]
-            dx = w2c[b, 0, 0] * sx + w2c[b, 0, 1] * sy + w2c[b, 0, 2] * sz
-            dy = w2c[b, 1, 0] * sx + w2c[b, 1, 1] * sy + w2c[b, 1, 2] * sz
-            dz = w2c[b, 2, 0] * sx + w2c[b, 2, 1] * sy + w2c[b, 2, 2] * sz
-            zc = max(mz, nr)
+            (mx, my, mz, dx, dy, dz, zc, iz, X, Y, ja, jb, sx, sy, sz, len2e, coef, sxx, sxy,
+             syy) = _segment(points, b, n, j, R, t, k00, k01, k10, k11, nr, w2, dil, eps_l)
             xn, yn = mx / zc, my / zc
             u = k00 * xn + k01 * yn + k02
             v = k10 * xn + k11 * yn + k12
-            iz = one / zc
-            X, Y = mx * iz, my * iz
-            a0 = iz * (dx - X * dz)
-            a1 = iz * (dy - Y * dz)
-            ja = k00 * a0 + k01 * a1
-            jb = k10 * a0 + k11 * a1
-            iz2 = iz * iz
-            m00, m01, m11 = iz2 * (one + X * X), iz2 * X * Y, iz2 * (one + Y * Y)
-            r00, r01 = k00 * m00 + k01 * m01, k00 * m01 + k01 * m11
-            r10, r11 = k10 * m00 + k11 * m01, k10 * m01 + k11 * m11
-            jj00, jj01, jj11 = r00 * k00 + r01 * k01, r00 * k10 + r01 * k11, r10 * k10 + r11 * k11
-            coef = quarter - w2 / (sx * sx + sy * sy + sz * sz + eps_l)
-            sxx = w2 * jj00 + coef * ja * ja + dil
-            sxy = w2 * jj01 + coef * ja * jb
-            syy = w2 * jj11 + coef * jb * jb + dil
             n2 = ja * ja + jb * jb + eps_d
             det = max(sxx * syy - sxy * sxy, tiny)
             gpar[g, G_MX], gpar[g, G_MY] = u, v
@@ -104,6 +119,7 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
     w2 = float(strand_width) * float(strand_width)
     Rs = w2c[:, :3, :3].astype(np.float64)
     ts = w2c[:, :3, 3].astype(np.float64)
+    points64 = points.astype(np.float64)
     for bn in prange(B * N):
         b, n = bn // N, bn - (bn // N) * N
         k00, k01, k10, k11 = float(K[b, 0, 0]), float(K[b, 0, 1]), float(K[b, 1, 0]), float(K[b, 1, 1])
@@ -120,34 +136,10 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
                     and gc == 0.0 and gs == 0.0:
                 continue  # undrawn (possibly non-finite) segment
             # forward again, in float64
-            p0 = (float(points[b, n, j, 0]), float(points[b, n, j, 1]), float(points[b, n, j, 2]))
-            p1 = (float(points[b, n, j + 1, 0]), float(points[b, n, j + 1, 1]), float(points[b, n, j + 1, 2]))
-            mwx, mwy, mwz = 0.5 * (p1[0] + p0[0]), 0.5 * (p1[1] + p0[1]), 0.5 * (p1[2] + p0[2])
-            sx, sy, sz = p1[0] - p0[0], p1[1] - p0[1], p1[2] - p0[2]
-            mx = R[0, 0] * mwx + R[0, 1] * mwy + R[0, 2] * mwz + t[0]
-            my = R[1, 0] * mwx + R[1, 1] * mwy + R[1, 2] * mwz + t[1]
-            mz = R[2, 0] * mwx + R[2, 1] * mwy + R[2, 2] * mwz + t[2]
-            dx = R[0, 0] * sx + R[0, 1] * sy + R[0, 2] * sz
-            dy = R[1, 0] * sx + R[1, 1] * sy + R[1, 2] * sz
-            dz = R[2, 0] * sx + R[2, 1] * sy + R[2, 2] * sz
-            zc = max(mz, near)
+            (mx, my, mz, dx, dy, dz, zc, iz, X, Y, ja, jb, sx, sy, sz, len2e, coef, sxx, sxy,
+             syy) = _segment(points64, b, n, j, R, t, k00, k01, k10, k11, near, w2, dilation, 1e-20)
             xn, yn = mx / zc, my / zc
-            iz = 1.0 / zc
-            X, Y = mx * iz, my * iz
-            a0 = iz * (dx - X * dz)
-            a1 = iz * (dy - Y * dz)
-            ja = k00 * a0 + k01 * a1
-            jb = k10 * a0 + k11 * a1
             iz2 = iz * iz
-            m00, m01, m11 = iz2 * (1.0 + X * X), iz2 * X * Y, iz2 * (1.0 + Y * Y)
-            r00, r01 = k00 * m00 + k01 * m01, k00 * m01 + k01 * m11
-            r10, r11 = k10 * m00 + k11 * m01, k10 * m01 + k11 * m11
-            jj00, jj01, jj11 = r00 * k00 + r01 * k01, r00 * k10 + r01 * k11, r10 * k10 + r11 * k11
-            len2e = sx * sx + sy * sy + sz * sz + 1e-20
-            coef = 0.25 - w2 / len2e
-            sxx = w2 * jj00 + coef * ja * ja + dilation
-            sxy = w2 * jj01 + coef * ja * jb
-            syy = w2 * jj11 + coef * jb * jb + dilation
             n2 = ja * ja + jb * jb + 1e-12
             # conic <- covariance: q = (syy, -sxy, sxx) / det, det = max(sxx syy - sxy^2, 1e-12)
             det_raw = sxx * syy - sxy * sxy
