@@ -323,3 +323,13 @@ def test_projection_jacobian_matches_finite_differences():
         d[i] = 1e-6
         num = (project_camera_points(cam + d, K)[0] - project_camera_points(cam - d, K)[0]) / 2e-6
         assert torch.allclose(J[..., i], num, atol=1e-5)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_near_plane_zero_renders(backend):
+    """near=0 is a valid setting (nothing is clipped but points behind the camera)."""
+    pts = torch.tensor([[[[-0.02, 0.0, 0.5], [0.0, 0.0, 0.5], [0.02, 0.0, 0.5]]]], dtype=DT)
+    K = torch.tensor([[[400.0, 0, 31.5], [0, 400.0, 31.5], [0, 0, 1]]], dtype=DT)
+    a = render_strands(pts, K, torch.eye(4, dtype=DT)[None], 64, 64, backend=backend)
+    b = render_strands(pts, K, torch.eye(4, dtype=DT)[None], 64, 64, backend=backend, near=0.0)
+    assert float(a.silhouette.sum()) > 1 and torch.allclose(a.silhouette, b.silhouette)

@@ -62,3 +62,4 @@ def test_compress16_appends_the_kept_lanes_in_order(dtype):
     dst = np.full(src.shape[0] + 16, -99, dtype)
     n = _compress_all(src, mask, dst)
     assert n == mask.sum() and np.array_equal(dst[:n], src[mask != 0])
+    assert np.all(dst[n:] == -99)  # nothing written past the kept lanes

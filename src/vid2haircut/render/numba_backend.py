@@ -97,10 +97,10 @@ class _Plan:
 
         self.wint, self.wflt = wint, wflt
         with _LOCK:
+            _numba_threads()
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
                 wint, wflt, frame, batch, width, height, TILE)
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
-        bounds = bounds + TILE  # the walk's compaction writes up to a line of lanes past the last element
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
         self.has_head = head is not None
@@ -109,7 +109,6 @@ class _Plan:
         self.nbins = int(consts.bins) if consts.shading else 1
         self.vis_weight = float(consts.vis_weight)
         self.shape = (batch, height, width)
-        numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
         self.work_start, self.work_tiles = numba_tiles.assign_tiles(self.tile_start, numba.get_num_threads())
 
 
@@ -120,6 +119,14 @@ def gaussian_table(means: Tensor, covs: Tensor, depths: Tensor, dirs: Tensor) ->
     return torch.stack([means[:, 0], means[:, 1], qxx, qxy, qyy, depths, dirs[:, 0], dirs[:, 1]], 1)
 
 
+def _numba_threads() -> None:
+    """numba's thread count := ``min(torch.get_num_threads(), NUMBA_NUM_THREADS)`` (the kernels run
+    as many threads as torch would)."""
+    import numba
+
+    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+
+
 class _FusedProject(torch.autograd.Function):
     @staticmethod
     def forward(ctx, points, K, world_2_cam, strand_width, dilation, near):
@@ -127,14 +134,16 @@ class _FusedProject(torch.autograd.Function):
 
         B, N, P = points.shape[:3]
         G = B * N * (P - 1)
-        pts = points.detach().contiguous().numpy()
-        Kn = K.detach().to(points.dtype).contiguous().numpy()
-        En = world_2_cam.detach().to(points.dtype).contiguous().numpy()
-        gpar, covs = np.empty((G, 8), pts.dtype), np.empty((G, 3), pts.dtype)
+        points = points.detach().contiguous()
+        K, world_2_cam = K.detach().to(points.dtype).contiguous(), world_2_cam.detach().to(points.dtype).contiguous()
+        gpar, covs = np.empty((G, 8), points.numpy().dtype), np.empty((G, 3), points.numpy().dtype)
         valid = np.empty(G, np.bool_)
         with _LOCK:
-            npj.project_forward(pts, Kn, En, strand_width, dilation, near, gpar, covs, valid)
-        ctx.arrays, ctx.consts = (pts, Kn, En), (strand_width, dilation, near)
+            _numba_threads()
+            npj.project_forward(points.numpy(), K.numpy(), world_2_cam.numpy(), strand_width, dilation, near, gpar,
+                                covs, valid)
+        ctx.save_for_backward(points, K, world_2_cam)  # autograd's version check guards in-place edits
+        ctx.consts = (strand_width, dilation, near)
         covs_t, valid_t = torch.from_numpy(covs), torch.from_numpy(valid)
         ctx.mark_non_differentiable(covs_t, valid_t)
         return torch.from_numpy(gpar), covs_t, valid_t
@@ -143,7 +152,7 @@ class _FusedProject(torch.autograd.Function):
     def backward(ctx, grad, _g_covs, _g_valid):
         from vid2haircut.render import numba_project as npj
 
-        pts, Kn, En = ctx.arrays
+        pts, Kn, En = (t.numpy() for t in ctx.saved_tensors)
         out = np.empty(pts.shape)
         g = grad.detach().to(torch.float64).contiguous().numpy()
         with _LOCK:
@@ -183,7 +192,8 @@ class _FusedComposite(torch.autograd.Function):
         with _LOCK:
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                  plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
-                                 TILE, plan.offsets, elems, e_range, out, maxw, numba_math.HAS_COMPRESS)
+                                 TILE, plan.offsets, elems, e_range, out, maxw,
+                                 numba_math.HAS_COMPRESS and TILE == 16)  # compress16 stores 16 lanes
             if plan.nbins > 1:
                 nk.reduce_visibility(plan.gstart, plan.inst_pos, maxw, plan.vis_weight, visible)
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
@@ -245,6 +255,7 @@ def composite_fused(
         G = means.shape[0]
         wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
         with _LOCK:
+            _numba_threads()
             numba_tiles.gaussian_windows(means.contiguous().numpy(), covs.detach().contiguous().numpy(),
                                          valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
     head = None

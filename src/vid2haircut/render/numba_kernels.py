@@ -67,13 +67,12 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             used when ``has_head``). consts: [3] (log opacity, alpha_min, alpha_max).
         nbins: depth bins (1: silhouette only). tile_start, sorted_g: instances per tile;
         work_start, work_tiles: tiles per worker (:func:`.numba_tiles.assign_tiles`).
-        offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`,
-            plus ``tile`` slots of slack for the walk's compaction).
+        offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`).
         elems: (pixel int32, bin int32, d l / d power, l (input dtype)) element arrays, filled.
         e_range: [n_instances, 2] filled with the element range of each instance.
         out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (C = 1:
         sum l only). maxw: [n_instances] filled with each instance's largest weight.
-        compress: the walk's compaction (:func:`.numba_lines.walk_lines`); ``tile`` must be 16.
+        compress: the walk's compaction (:func:`.numba_lines.walk_lines`; only with ``tile`` 16).
     """
     e_p, e_bin, e_al, e_la = elems
     L = tile
@@ -92,7 +91,7 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             n = walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, nbins > 1,
                            lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress)
             alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
-            zref = np.empty(npx, zs.dtype)
+            zref = np.full(npx, np.inf, zs.dtype)
             if nbins > 1:
                 fold_zref(zref2, zref, x1, x0, y1, y0, L)
             Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, True)

@@ -100,9 +100,9 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     Candidates are the window pixels inside the ellipse power > log(alpha_min) - 1e-3 that the
     head does not hide; alpha > alpha_min is then tested exactly by
     :func:`vid2haircut.render.numba_walk.alpha_and_l` (the few candidates that fail it stay, with
-    alpha = l = 0: they add nothing). The element slots must hold the window elements
-    (:func:`vid2haircut.render.numba_walk.tile_bounds`) plus L: the compaction may write a line's
-    lanes past the last kept one.
+    alpha = l = 0: they add nothing). The element slots must hold the tile's window elements
+    (:func:`vid2haircut.render.numba_walk.tile_bounds`): nothing is written past the last kept
+    element.
     ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
     ``compress``: append the kept lanes with :func:`vid2haircut.render.numba_math.compress16` (pass
     ``numba_math.HAS_COMPRESS``) instead of a loop; the same elements either way.

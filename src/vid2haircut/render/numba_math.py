@@ -180,8 +180,8 @@ def _host_has_avx512() -> bool:
 
 
 HAS_COMPRESS = _host_has_avx512()
-"""Whether :func:`compress16` compiles to AVX-512 compress instructions on this machine (read by
-numba as a compile-time constant; the kernels' disk cache is per CPU, so it cannot go stale)."""
+"""Whether :func:`compress16` compiles to AVX-512 compress instructions on this machine; the
+backend passes it to the kernels as a run-time flag (tests set it both ways)."""
 
 
 @intrinsic

@@ -33,7 +33,7 @@ def _segment(points, b, n, j, R, t, k00, k01, k10, k11, near, w2, dilation, eps_
     (mx, my, mz) and segment (dx, dy, dz), zc = max(mz, near), iz = 1 / zc, X = mx iz, Y = my iz,
     the projected segment (ja, jb), the world segment (sx, sy, sz) with len2e = |s|^2 + eps_l,
     coef = 1/4 - w^2 / len2e and the covariance (sxx, sxy, syy)."""
-    one = near / near
+    one = lane_cast(1.0, near)
     p0x, p0y, p0z = points[b, n, j, 0], points[b, n, j, 1], points[b, n, j, 2]
     p1x, p1y, p1z = points[b, n, j + 1, 0], points[b, n, j + 1, 1], points[b, n, j + 1, 2]
     half = one / (one + one)

@@ -192,11 +192,11 @@ def gaussian_windows(means, covs, valid, height, width, power_min, cols, max_row
         u_lo = max(np.ceil(mu - eu), f32(0.0))
         u_hi = min(np.floor(mu + eu), size_u - f32(1.0))
         on_image = (mv + ev >= f32(0.0)) & (mv - ev <= size_v - f32(1.0))
-        ok = valid[g] & on_image & np.isfinite(mu) & np.isfinite(eu) & np.isfinite(ev)
-        ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if ok else f32(0.0)
         slope = sxy / suu
         det = max(suu * svv - sxy * sxy, f32(1e-12))
         half = np.sqrt(c2 * det / suu)
+        ok = valid[g] & on_image & np.isfinite(mu) & np.isfinite(eu) & np.isfinite(ev) & np.isfinite(half)
+        ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if ok else f32(0.0)
         nt = np.int64(np.ceil(ncol / f32(cols)))
         ntu[g] = nt
         need[g] = np.int64(np.floor(f32(2.0) * half) + f32(1.0)) if nt > 0 else 1

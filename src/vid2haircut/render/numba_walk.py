@@ -16,8 +16,7 @@ from vid2haircut.render.numba_math import lane_cast, lane_exp, lane_log1m, vexp
 from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_ULO
 
 JIT = dict(cache=True, error_model="numpy")
-BIG = 1e12  # turns a positive depth gap (> 1e-12 m) into a head factor of 1 after clamping
-# columns of the float64 Gaussian table ``gpar`` [G, 8]
+# columns of the Gaussian table ``gpar`` [G, 8] (input dtype)
 G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_Z, G_C, G_S = range(8)
 # entries of ``consts``: log opacity, alpha_min, alpha_max
 C_LOGOP, C_AMIN, C_AMAX = range(3)
@@ -97,7 +96,8 @@ def bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, 
             zk = zs[sorted_g[k]]
             for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
                 p = np.uint64(e_p[e])
-                bn = int(min(max(zk - zref[p], 0.0), top))  # zk - z_ref in the dtype of zs
+                d = zk - zref[p]  # in the dtype of zs
+                bn = int(min(d, top)) if d > 0.0 else 0  # clamp(floor(d), 0, top); 0 for NaN
                 e_bin[e] = bn
                 Lb[np.uint64(bn), p] += e_la[e]
                 nb = max(nb, bn + 1)
