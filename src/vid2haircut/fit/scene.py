@@ -80,8 +80,9 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     Args:
         points: (B,N,P,3) strands in the canonical head frame, one set per rendered keyframe.
         data: the sequence; frames: (B,) int64 keyframe positions into ``data``.
-        settings: strand width, depth bins, the silhouette's opacity (below 1 the silhouette comes
-            from a second, silhouette-only render at that opacity).
+        settings: strand width, depth bins, the silhouette's opacity (below 1 the silhouette is
+            that of the strands drawn at that opacity, the other channels the opaque render's;
+            ``render_strands(silhouette_opacity=...)``, one window walk for both on the CPU).
         shading: False renders the silhouette only.
 
     Raises:
@@ -92,16 +93,11 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     fr = frames.to(data.K.device)
     head_depth = data.head_depth[fr] if data.head_depth is not None else None
 
-    def draw(opacity: float, shade: bool) -> StrandRender:
-        return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
-                              strand_width=settings.strand_width, opacity=opacity, head_depth=head_depth,
-                              bins=settings.bins, depth_bin=settings.depth_bin, vis_weight=settings.vis_weight,
-                              shading=shade)
-
-    out = draw(1.0, shading)
-    if settings.silhouette_opacity < 1.0:
-        out = out._replace(silhouette=draw(settings.silhouette_opacity, False).silhouette)
-    return out
+    translucent = settings.silhouette_opacity if settings.silhouette_opacity < 1.0 else None
+    return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
+                          strand_width=settings.strand_width, head_depth=head_depth, bins=settings.bins,
+                          depth_bin=settings.depth_bin, vis_weight=settings.vis_weight, shading=shading,
+                          silhouette_opacity=translucent)
 
 
 def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: str = "quantile",

@@ -66,6 +66,7 @@ def render_strands(
     near: float = 1e-2,
     shading: bool = True,
     backend: str = "auto",
+    silhouette_opacity: float | None = None,
 ) -> StrandRender:
     """Render strands as strand-aligned Gaussians to silhouette, direction and depth maps.
 
@@ -96,6 +97,11 @@ def render_strands(
             "auto" (default: numba for float32/float64 CPU points when numba imports, else torch;
             see :mod:`vid2haircut.render.numba_backend`). Both give the same result up to float
             round-off.
+        silhouette_opacity: when given, ``silhouette`` is that of the same strands drawn at this
+            peak opacity (e.g. translucent guides in a silhouette term), while ``mask``, depth,
+            direction and visibility stay those at ``opacity``: the same as replacing the
+            silhouette by that of a second, silhouette-only render at this opacity. The numba
+            backend composites both from one window walk when it is below ``opacity``.
 
     Returns:
         :class:`StrandRender` (see its field docs for shapes and empty-pixel values).
@@ -115,6 +121,8 @@ def render_strands(
                          f"alpha_min={alpha_min}, opacity={opacity}, alpha_max={alpha_max}")
     if depth_bin <= 0 or bins < 1:
         raise ValueError(f"need depth_bin > 0 and bins >= 1, got depth_bin={depth_bin}, bins={bins}")
+    if silhouette_opacity is not None and not 0.0 < silhouette_opacity <= 1.0:
+        raise ValueError(f"silhouette_opacity must be in (0, 1], got {silhouette_opacity}")
     check_points(points)
     use_numba = resolve_backend(backend, points) == "numba"
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
@@ -141,16 +149,29 @@ def render_strands(
     consts = KernelConsts(log_op, alpha_min, alpha_max, depth_bin, int(bins), vis_weight, shading, chunk)
     flat = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2))
     power_min = math.log(alpha_min) - log_op
+    # a translucent silhouette below the opacity comes from the same walk in the numba backend
+    fused_second = use_numba and silhouette_opacity is not None and silhouette_opacity < opacity
+    log_t2 = None
     if use_numba:
         torch_projection = table is None
         if torch_projection:
             table = gaussian_table(*flat)
-        sums, visible = composite_fused(table, flat[1], g.valid.reshape(G), frame, B, height, width, consts, power_min,
-                                        head_depth, torch_windows=torch_projection)
+        ratio = silhouette_opacity / opacity if fused_second else 0.0
+        sums, visible, log_t2 = composite_fused(table, flat[1], g.valid.reshape(G), frame, B, height, width, consts,
+                                                power_min, head_depth, torch_windows=torch_projection,
+                                                silhouette_ratio=ratio)
     else:
         fp = build_footprint(flat[0], flat[1], g.valid.reshape(G), frame, height, width, power_min)
         sums, visible = composite(*flat, fp, B, height, width, consts, head_depth)
-    return _finish(sums, visible.reshape(B, N, P - 1), g)
+    out = _finish(sums, visible.reshape(B, N, P - 1), g)
+    if log_t2 is not None:
+        return out._replace(silhouette=-torch.expm1(log_t2) + 0.0)
+    if silhouette_opacity is not None and silhouette_opacity != opacity:  # a second render
+        second = render_strands(points, K, world_2_cam, width, height, strand_width, head_depth, opacity=silhouette_opacity,
+                                dilation=dilation, alpha_min=alpha_min, alpha_max=alpha_max, near=near, shading=False,
+                                backend=backend)
+        return out._replace(silhouette=second.silhouette)
+    return out
 
 
 def _finish(sums: PixelSums, visibility: Tensor, g) -> StrandRender:

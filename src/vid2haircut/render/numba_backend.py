@@ -90,7 +90,8 @@ def resolve_backend(backend: str, points: Tensor) -> str:
 class _Plan:
     """Everything the kernels need besides the differentiable Gaussian values (numpy arrays)."""
 
-    def __init__(self, wint, wflt, frame, head, consts: KernelConsts, batch: int, height: int, width: int, dtype):
+    def __init__(self, wint, wflt, frame, head, consts: KernelConsts, batch: int, height: int, width: int, dtype,
+                 ratio: float = 0.0):
         import numba
 
         from vid2haircut.render import numba_tiles, numba_walk
@@ -105,7 +106,8 @@ class _Plan:
         self.capacity = int(bounds.sum())
         self.has_head = head is not None
         self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
-        self.consts = np.array([consts.log_opacity, consts.alpha_min, consts.alpha_max], np.float64)
+        self.consts = np.array([consts.log_opacity, consts.alpha_min, consts.alpha_max, ratio], np.float64)
+        self.second = ratio > 0.0
         self.nbins = int(consts.bins) if consts.shading else 1
         self.vis_weight = float(consts.vis_weight)
         self.shape = (batch, height, width)
@@ -183,10 +185,12 @@ class _FusedComposite(torch.autograd.Function):
         gpar = table.detach().contiguous().numpy()
         zs_np = zs.detach().contiguous().numpy()
         B, H, W = plan.shape
-        out = np.zeros((B, H, W, 4 if plan.nbins > 1 else 1), zs_np.dtype)
+        out = np.zeros((B, H, W, (4 if plan.nbins > 1 else 1) + plan.second), zs_np.dtype)
         maxw = np.zeros(plan.sorted_g.shape[0])
         cap = plan.capacity
-        elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, gpar.dtype), np.empty(cap, gpar.dtype))
+        cap2 = cap if plan.second else 0
+        elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, gpar.dtype), np.empty(cap, gpar.dtype),
+                 np.empty(cap2, gpar.dtype), np.empty(cap2, gpar.dtype))
         e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
         visible = np.zeros(gpar.shape[0], np.bool_)
         with _LOCK:
@@ -229,7 +233,8 @@ def composite_fused(
     power_min: float,
     head_depth: Tensor | None = None,  # [B, H, W]
     torch_windows: bool = False,
-) -> tuple[PixelSums, Tensor]:
+    silhouette_ratio: float = 0.0,
+) -> tuple[PixelSums, Tensor, Tensor | None]:
     """Composite G Gaussians (flattened over frames) into per-pixel sums with the fused CPU kernels.
 
     Same contract as :func:`vid2haircut.render.raster.composite`, but the Gaussians come as the
@@ -238,9 +243,12 @@ def composite_fused(
     footprint. ``torch_windows``: take the pixel windows from the torch backend's
     :func:`vid2haircut.render.footprint.gaussian_windows` (bit for bit its windows: for Gaussians
     projected by torch) instead of :func:`vid2haircut.render.numba_tiles.gaussian_windows`.
+    ``silhouette_ratio`` in (0, 1): also composite a second silhouette at that fraction of the
+    opacity, from the same window walk (:func:`.numba_walk.alpha_and_l2`).
 
     Returns:
-        (:class:`PixelSums` with [B, H, W] fields, visible [G] bool).
+        (:class:`PixelSums` with [B, H, W] fields, visible [G] bool, the second silhouette's
+        [B, H, W] sum of log(1 - alpha) or None).
     """
     from vid2haircut.render import numba_tiles
 
@@ -262,12 +270,13 @@ def composite_fused(
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
         head = head_depth.detach().to(dt).contiguous().numpy()
     plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), head, consts, batch, height, width,
-                 np.float32 if dt == torch.float32 else np.float64)
+                 np.float32 if dt == torch.float32 else np.float64, silhouette_ratio)
     zs = table[:, 5].detach() * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
     out, visible = _FusedComposite.apply(table, zs, plan)
     log_t = out[..., 0]
     weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
+    log_t2 = out[..., -1] if plan.second else None
     if not consts.shading:
         zeros = torch.zeros_like(log_t)
-        return PixelSums(log_t, weight, zeros, torch.stack([zeros, zeros], -1)), visible
-    return PixelSums(log_t, weight, out[..., 1], out[..., 2:4]), visible
+        return PixelSums(log_t, weight, zeros, torch.stack([zeros, zeros], -1)), visible, log_t2
+    return PixelSums(log_t, weight, out[..., 1], out[..., 2:4]), visible, log_t2

@@ -36,8 +36,9 @@ import numpy as np
 from numba import njit, prange
 
 from vid2haircut.render.numba_lines import fold_zref, load_head, walk_lines
-from vid2haircut.render.numba_walk import (C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
-                                           alpha_and_l, bin_sums, gradient_table, tile_box, weight_table)
+from vid2haircut.render.numba_walk import (C_AMAX, C_AMIN, C_RATIO, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
+                                           alpha_and_l, alpha_and_l2, bin_sums, gradient_table, tile_box,
+                                           weight_table)
 
 N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
@@ -64,17 +65,21 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
         gpar: [G, 8] (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a) in the input dtype, the
             lane dtype of the walk and of alpha and l. zs: [G] z / depth_bin (same dtype). wint,
             wflt: window tables (:mod:`.numba_tiles`). head: [B, H, W] head depth (same dtype;
-            used when ``has_head``). consts: [3] (log opacity, alpha_min, alpha_max).
+            used when ``has_head``). consts: [4] (log opacity, alpha_min, alpha_max, the second
+            silhouette's opacity over the first's: 0 for none).
         nbins: depth bins (1: silhouette only). tile_start, sorted_g: instances per tile;
         work_start, work_tiles: tiles per worker (:func:`.numba_tiles.assign_tiles`).
         offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`).
-        elems: (pixel int32, bin int32, d l / d power, l (input dtype)) element arrays, filled.
+        elems: (pixel int32, bin int32, d l / d power, l, d l2 / d power, l2 (input dtype))
+            element arrays, filled (the last two: the second silhouette's, empty without one).
         e_range: [n_instances, 2] filled with the element range of each instance.
-        out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (C = 1:
-        sum l only). maxw: [n_instances] filled with each instance's largest weight.
+        out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (without
+            shading: sum l only), then sum l2 when there is a second silhouette.
+        maxw: [n_instances] filled with each instance's largest weight.
         compress: the walk's compaction (:func:`.numba_lines.walk_lines`; only with ``tile`` 16).
     """
-    e_p, e_bin, e_al, e_la = elems
+    e_p, e_bin, e_al, e_la, e_dl2, e_la2 = elems
+    second = consts[C_RATIO] > 0.0
     L = tile
     for wk in prange(work_start.shape[0] - 1):
         hl, zref2 = np.empty(2 * L * L, zs.dtype), np.empty(2 * L * L, zs.dtype)
@@ -90,15 +95,22 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             off = offsets[t]
             n = walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, nbins > 1,
                            lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress)
-            alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
+            if second:
+                alpha_and_l2(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX], consts[C_RATIO],
+                             e_dl2[off:off + n], e_la2[off:off + n])
+            else:
+                alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
             zref = np.full(npx, np.inf, zs.dtype)
             if nbins > 1:
                 fold_zref(zref2, zref, x1, x0, y1, y0, L)
             Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, True)
-            acc = np.zeros((4, npx))
+            acc = np.zeros((5, npx))
             for bb in range(nb):  # sum of l, in bin order
                 for p in range(npx):
                     acc[0, p] += Lb[bb, p]
+            if second:  # sum of l2, in element order
+                for e in range(np.uint64(off), np.uint64(off + n)):
+                    acc[4, np.uint64(e_p[e])] += e_la2[e]
             if nbins > 1:
                 negM, Etab = weight_table(Lb, nb)
                 for k in range(i0, i1):
@@ -113,10 +125,13 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
                         acc[3, p] += w * s
                         mw = max(mw, w)
                     maxw[k] = mw
+            nch = out.shape[3] - (1 if second else 0)
             for p in range(npx):
                 y, x = y0 + p // tw, x0 + p % tw
-                for ch in range(out.shape[3]):
+                for ch in range(nch):
                     out[b, y, x, ch] = acc[ch, p]
+                if second:
+                    out[b, y, x, nch] = acc[4, p]
 
 
 @njit(**_PAR)
@@ -126,10 +141,13 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
 
     Args:
         grad: [B, H, W, C] upstream gradient of ``out``; the other arguments as given to (and
-            filled by) :func:`composite_forward`.
+            filled by) :func:`composite_forward` (consts[3] > 0: the last channel is the second
+            silhouette's).
         acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``).
     """
-    e_p, e_bin, e_dl, e_la = elems
+    e_p, e_bin, e_dl, e_la, e_dl2, e_la2 = elems
+    second = consts[C_RATIO] > 0.0
+    c2 = grad.shape[3] - 1  # the second silhouette's channel
     for wk in prange(work_start.shape[0] - 1):
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
@@ -139,9 +157,12 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
             i0, i1 = tile_start[t], tile_start[t + 1]
             Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, gpar[:0, 0], gpar[:0, 0], nbins, npx, False)
             gl = np.zeros((4, npx))
+            g2 = np.zeros(npx if second else 0)
             for p in range(npx):
-                for ch in range(grad.shape[3]):
+                for ch in range(grad.shape[3] - (1 if second else 0)):
                     gl[ch, p] = grad[b, int(py[p]), int(px[p]), ch]
+            for p in range(g2.shape[0]):
+                g2[p] = grad[b, int(py[p]), int(px[p]), c2]
             if nbins > 1:
                 negM, Etab = weight_table(Lb, nb)
                 Gt = np.zeros((nbins, npx))
@@ -169,6 +190,8 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
                     p, bn = np.uint64(e_p[e]), np.uint64(e_bin[e])
                     q = gl[1, p] * z + gl[2, p] * c + gl[3, p] * s  # d loss / d w
                     gp = (H[bn, p] + q * negM[bn, p]) * e_dl[e]  # d l / d power, 0 where alpha was clamped
+                    if second:
+                        gp += g2[p] * e_dl2[e]
                     dx, dy = px[p] - mx, py[p] - my
                     s0 += gp * dx
                     s1 += gp * dy

@@ -18,8 +18,8 @@ from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_ULO
 JIT = dict(cache=True, error_model="numpy")
 # columns of the Gaussian table ``gpar`` [G, 8] (input dtype)
 G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_Z, G_C, G_S = range(8)
-# entries of ``consts``: log opacity, alpha_min, alpha_max
-C_LOGOP, C_AMIN, C_AMAX = range(3)
+# entries of ``consts``: log opacity, alpha_min, alpha_max, second silhouette's opacity ratio (0: none)
+C_LOGOP, C_AMIN, C_AMAX, C_RATIO = range(4)
 
 
 @njit(**JIT)
@@ -78,6 +78,29 @@ def alpha_and_l(pw, hf, amin, amax):
         al = (al if al > lo else zero) * hf[i]
         pw[i] = al / (al - one) if al < hi else zero
         hf[i] = lane_log1m(al)
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract"})
+def alpha_and_l2(pw, hf, amin, amax, ratio, dl2, la2):
+    """:func:`alpha_and_l`, and the same for a second, translucent silhouette whose opacity is
+    ``ratio`` (< 1) times the first's: alpha2 = min(ratio exp(power), alpha_max) if > alpha_min
+    else 0, times the head factor, into dl2 (d l2 / d power) and la2 (l2 = log(1 - alpha2)).
+    Every contribution of the translucent render is one of the opaque render's, so one window
+    walk serves both (:func:`vid2haircut.render.render_strands`, ``silhouette_opacity``)."""
+    if pw.shape[0] == 0:
+        return
+    lo, hi, zero, one = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0]), lane_cast(1.0, pw[0])
+    r = lane_cast(ratio, pw[0])
+    for i in range(pw.shape[0]):
+        e = lane_exp(pw[i])
+        al = min(e, hi)
+        al = (al if al > lo else zero) * hf[i]
+        a2 = min(e * r, hi)
+        a2 = (a2 if a2 > lo else zero) * hf[i]
+        pw[i] = al / (al - one) if al < hi else zero
+        hf[i] = lane_log1m(al)
+        dl2[i] = a2 / (a2 - one) if a2 < hi else zero
+        la2[i] = lane_log1m(a2)
 
 
 @njit(**JIT)
