@@ -136,7 +136,8 @@ def render_strands(
     S = N * (P - 1)
     G = B * S
     table = None  # the numba backend's [G, 8] Gaussian table
-    if use_numba and not (K.requires_grad or world_2_cam.requires_grad):  # fused projection (gradients reach the points)
+    # the numba projection, when gradients need to reach the points only
+    if use_numba and not (K.requires_grad or world_2_cam.requires_grad):
         table, covs, valid = project_fused(points, K, world_2_cam, strand_width, dilation, near)
         g = Gaussians2D(table[:, 0:2].reshape(B, S, 2), covs.reshape(B, S, 3), table[:, 5].reshape(B, S),
                         table[:, 6:8].reshape(B, S, 2), valid.reshape(B, S))
@@ -167,9 +168,9 @@ def render_strands(
     if log_t2 is not None:
         return out._replace(silhouette=-torch.expm1(log_t2) + 0.0)
     if silhouette_opacity is not None and silhouette_opacity != opacity:  # a second render
-        second = render_strands(points, K, world_2_cam, width, height, strand_width, head_depth, opacity=silhouette_opacity,
-                                dilation=dilation, alpha_min=alpha_min, alpha_max=alpha_max, near=near, shading=False,
-                                backend=backend)
+        second = render_strands(points, K, world_2_cam, width, height, strand_width, head_depth,
+                                opacity=silhouette_opacity, dilation=dilation, alpha_min=alpha_min,
+                                alpha_max=alpha_max, near=near, shading=False, backend=backend)
         return out._replace(silhouette=second.silhouette)
     return out
 
