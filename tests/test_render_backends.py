@@ -143,10 +143,11 @@ def test_walk_compaction_by_loop_equals_compress(dtype, monkeypatch):
 
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
 @pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-10), (torch.float32, 2e-5)])
-def test_translucent_silhouette_from_one_walk(dtype, tol):
+@pytest.mark.parametrize("sop", [0.3, 0.995])
+def test_translucent_silhouette_from_one_walk(dtype, tol, sop):
     """``silhouette_opacity`` below the opacity: the numba backend's one-walk silhouette equals a
     second, silhouette-only render at that opacity (values and gradients), the rest is the opaque
-    render's; the torch backend (two renders) agrees."""
+    render's; the torch backend (two renders) agrees. 0.995 reaches the ``alpha_max`` clamp."""
     pts, K, E, w, h, head = _backend_scene(dtype)
     R = torch.randn(2, h, w, 3, generator=torch.Generator().manual_seed(2), dtype=dtype)
 
@@ -154,24 +155,34 @@ def test_translucent_silhouette_from_one_walk(dtype, tol):
         return (out.silhouette * R[..., 0]).sum() + (out.depth_normalized * R[..., 1]).sum() + \
             (out.direction[..., 0] * R[..., 2]).sum()
 
-    one = render_strands(pts, K, E, w, h, head_depth=head, backend="numba", silhouette_opacity=0.3)
+    one = render_strands(pts, K, E, w, h, head_depth=head, backend="numba", silhouette_opacity=sop)
     opaque = render_strands(pts, K, E, w, h, head_depth=head, backend="numba")
-    sil = render_strands(pts, K, E, w, h, head_depth=head, backend="numba", opacity=0.3, shading=False)
+    sil = render_strands(pts, K, E, w, h, head_depth=head, backend="numba", opacity=sop, shading=False)
     two = opaque._replace(silhouette=sil.silhouette)
     assert float((one.silhouette - two.silhouette).detach().abs().max()) < tol
-    assert float((one.silhouette - opaque.silhouette).detach().abs().max()) > 0.1  # it is translucent
+    if sop < 0.5:
+        assert float((one.silhouette - opaque.silhouette).detach().abs().max()) > 0.1  # it is translucent
     for name in ("depth", "direction", "mask", "visibility"):
         assert torch.equal(getattr(one, name), getattr(two, name)), name
     (g1,) = torch.autograd.grad(loss(one), pts)
     (g2,) = torch.autograd.grad(loss(two), pts)
     assert float((g1 - g2).abs().max()) < tol * float(g2.abs().max())
     if dtype == torch.float64:
-        t = render_strands(pts, K, E, w, h, head_depth=head, backend="torch", silhouette_opacity=0.3)
+        t = render_strands(pts, K, E, w, h, head_depth=head, backend="torch", silhouette_opacity=sop)
         assert float((t.silhouette - one.silhouette).detach().abs().max()) < tol
         (gt,) = torch.autograd.grad(loss(t), pts)
         assert float((gt - g1).abs().max()) < 1e-9 * float(gt.abs().max())
-    with pytest.raises(ValueError, match="silhouette_opacity"):
-        render_strands(pts, K, E, w, h, silhouette_opacity=0.0)
+        # without shading: the silhouette alone, the same on both backends
+        kw = dict(head_depth=head, silhouette_opacity=sop, shading=False)
+        n, t = (render_strands(pts, K, E, w, h, backend=b, **kw) for b in ("numba", "torch"))
+        assert float((n.silhouette - t.silhouette).detach().abs().max()) < tol
+        (gn,) = torch.autograd.grad((n.silhouette * R[..., 0]).sum(), pts)
+        (gt,) = torch.autograd.grad((t.silhouette * R[..., 0]).sum(), pts)
+        assert float((gn - gt).abs().max()) < 1e-9 * float(gt.abs().max())
+    for bad in (0.0, 0.005):  # at or below alpha_min (exp(-4.5) = 0.011): both backends refuse it
+        for backend in ("numba", "torch"):
+            with pytest.raises(ValueError, match="silhouette_opacity"):
+                render_strands(pts, K, E, w, h, backend=backend, silhouette_opacity=bad)
 
 
 def test_backend_choice():

@@ -121,8 +121,8 @@ def render_strands(
                          f"alpha_min={alpha_min}, opacity={opacity}, alpha_max={alpha_max}")
     if depth_bin <= 0 or bins < 1:
         raise ValueError(f"need depth_bin > 0 and bins >= 1, got depth_bin={depth_bin}, bins={bins}")
-    if silhouette_opacity is not None and not 0.0 < silhouette_opacity <= 1.0:
-        raise ValueError(f"silhouette_opacity must be in (0, 1], got {silhouette_opacity}")
+    if silhouette_opacity is not None and not alpha_min < silhouette_opacity <= 1.0:
+        raise ValueError(f"silhouette_opacity must be in (alpha_min, 1] = ({alpha_min}, 1], got {silhouette_opacity}")
     check_points(points)
     use_numba = resolve_backend(backend, points) == "numba"
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
