@@ -62,6 +62,16 @@ def tile_bounds(tile_start, sorted_g, wint, width, height, tile):
     return bounds
 
 
+@njit(inline="always")
+def _dl_and_l(e, h, lo, hi, zero, one):
+    """(d l / d power, l) of one element: alpha = min(e, alpha_max) if > alpha_min else 0, times
+    the head factor h, l = log(1 - alpha), d l / d power = alpha / (alpha - 1) (0 where alpha is
+    clamped to alpha_max); e = exp(power) times the opacity ratio."""
+    al = min(e, hi)
+    al = (al if al > lo else zero) * h
+    return (al / (al - one) if al < hi else zero), lane_log1m(al)
+
+
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
 def alpha_and_l(pw, hf, amin, amax):
     """In place: with alpha = min(exp(power), alpha_max) if > alpha_min else 0, times the head
@@ -74,10 +84,7 @@ def alpha_and_l(pw, hf, amin, amax):
         return
     lo, hi, zero, one = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0]), lane_cast(1.0, pw[0])
     for i in range(pw.shape[0]):
-        al = min(lane_exp(pw[i]), hi)
-        al = (al if al > lo else zero) * hf[i]
-        pw[i] = al / (al - one) if al < hi else zero
-        hf[i] = lane_log1m(al)
+        pw[i], hf[i] = _dl_and_l(lane_exp(pw[i]), hf[i], lo, hi, zero, one)
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
@@ -92,15 +99,9 @@ def alpha_and_l2(pw, hf, amin, amax, ratio, dl2, la2):
     lo, hi, zero, one = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0]), lane_cast(1.0, pw[0])
     r = lane_cast(ratio, pw[0])
     for i in range(pw.shape[0]):
-        e = lane_exp(pw[i])
-        al = min(e, hi)
-        al = (al if al > lo else zero) * hf[i]
-        a2 = min(e * r, hi)
-        a2 = (a2 if a2 > lo else zero) * hf[i]
-        pw[i] = al / (al - one) if al < hi else zero
-        hf[i] = lane_log1m(al)
-        dl2[i] = a2 / (a2 - one) if a2 < hi else zero
-        la2[i] = lane_log1m(a2)
+        e, h = lane_exp(pw[i]), hf[i]
+        dl2[i], la2[i] = _dl_and_l(e * r, h, lo, hi, zero, one)
+        pw[i], hf[i] = _dl_and_l(e, h, lo, hi, zero, one)
 
 
 @njit(**JIT)
