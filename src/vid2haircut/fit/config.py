@@ -353,9 +353,13 @@ class Stage2Config:
     from step 0 0.0408 and 0.0339, as the wavy style fails (0.0530 -> 0.0745), and from step 150 the
     wavy style fails again (0.0764; ``benchmarks/RESULTS.md``, "Drawing the dense hair in Stage 2's
     image terms")."""
-    dense_width: float = 0.0015
+    dense_width: float = 0.001
     """Short-axis size of the dense strands' Gaussians with ``render_dense`` (in place of
-    ``render.strand_width``, which stays the guides')."""
+    ``render.strand_width``, which stays the guides'). Measured on ``benchmarks/quality.py`` (seed
+    0, Chamfer_pts 1e-4 m^2 / Chamfer_angle, ``benchmarks/stage2_sweep.py``): 1 mm gives 0.0354 /
+    0.2328 and 0.0332 / 0.2577 on its two draws against 0.0361 / 0.2338 and 0.0337 / 0.2588 at 1.5
+    mm, better on 8 of the 12 sequences, in the same time (``benchmarks/RESULTS.md``, "The dense
+    strands' width and the fitting resolution")."""
     dense_silhouette_opacity: float = 1.0
     """Peak opacity of the dense strands in the silhouette term with ``render_dense`` (in place of
     ``render.silhouette_opacity``, which stays the guides')."""
