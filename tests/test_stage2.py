@@ -84,6 +84,44 @@ def test_deformation_weight_zero_at_root():
     assert torch.allclose(seg(moved), seg(pts), atol=1e-6)                  # lengths restored
 
 
+def test_blockwise_field_matches_the_concatenated_mlp():
+    """offsets_batch (the first layer evaluated block by block, several keyframes per call) is the
+    MLP applied to the concatenated input, as written: values and every gradient agree."""
+    gen = torch.Generator().manual_seed(4)
+    field = DeformationField(4, 30, DeformConfig(), seed=2)
+    with torch.no_grad():                       # a trained-looking field: every input block matters
+        field.mlp[-1].weight.copy_(0.3 * torch.randn(field.mlp[-1].weight.shape, generator=gen))
+        field.texel_embed.weight.copy_(0.5 * torch.randn(field.texel_embed.weight.shape, generator=gen))
+    t = torch.linspace(0, 1, 16)[:, None]
+    base = torch.cat([0.02 * t, -0.2 * t, 0.01 * torch.sin(9 * t)], -1)[None]
+    pts = (base + 0.01 * torch.randn(30, 1, 3, generator=gen)).double().requires_grad_(True)
+    field = field.double()
+    frames = torch.tensor([2, 0, 3])
+    index = torch.randperm(30, generator=gen)
+    weights = torch.randn(3, 30, 16, 3, generator=gen, dtype=torch.float64)
+
+    def grads(off):
+        field.zero_grad()
+        pts.grad = None
+        (off * weights).sum().backward()
+        return [pts.grad.clone()] + [p.grad.clone() for p in field.parameters()]
+
+    per_frame = torch.stack([pts + 0.001 * i for i in range(3)])          # frames may see different strands
+    fast = field.offsets_batch(per_frame, frames, index)
+    g_fast = grads(fast)
+    slow = torch.stack([field.offsets_reference(per_frame[i], int(f), index) for i, f in enumerate(frames)])
+    g_slow = grads(slow)
+    assert float(slow.detach().abs().max()) > 1e-3
+    torch.testing.assert_close(fast, slow, rtol=1e-12, atol=1e-15)
+    for a, b in zip(g_fast, g_slow):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-14)
+    moved, off = field.forward_batch(per_frame, frames, index, scale=0.5)
+    for i, f in enumerate(frames):                                          # one keyframe at a time: the same
+        m1, o1 = field(per_frame[i], int(f), index, scale=0.5)
+        torch.testing.assert_close(moved[i], m1, rtol=1e-12, atol=1e-15)
+        torch.testing.assert_close(off[i], o1, rtol=1e-12, atol=1e-15)
+
+
 def test_one_default_step_moves_the_field_by_a_fraction_of_its_range():
     """At the default learning rates, one Adam step from rest moves the field's output (before the
     clamp) by well under its range [-1, 1]: the field can settle between rest and the bound."""

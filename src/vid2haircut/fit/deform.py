@@ -73,6 +73,12 @@ def strand_frames(points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return n, b
 
 
+def _segments(points: torch.Tensor) -> torch.Tensor:
+    """Segment vectors of strands (...,P,3) -> (...,P,3): x_{i+1} - x_i, the last one repeated."""
+    seg = points[..., 1:, :] - points[..., :-1, :]
+    return torch.cat([seg, seg[..., -1:, :]], dim=-2)
+
+
 def rechain(points: torch.Tensor, seg_len: torch.Tensor) -> torch.Tensor:
     """Restore segment lengths: walk each strand from its root along the moved segment directions.
 
@@ -131,34 +137,80 @@ class DeformationField(nn.Module):
                 {"params": codes, "lr": lr_codes, "name": "frame_codes"}]
 
     def offsets(self, points: torch.Tensor, frame: int, strand_index: torch.Tensor | None = None) -> torch.Tensor:
-        """Canonical-space offsets dx_t. points: (N,P,3) canonical strands -> (N,P,3).
+        """Canonical-space offsets dx_t of one keyframe. points: (N,P,3) canonical strands -> (N,P,3).
 
         ``strand_index`` (N,) selects the texel embeddings (default arange(N)).
         """
-        n_str, n_pts, _ = points.shape
+        frames = torch.tensor([int(frame)], device=points.device)
+        return self.offsets_batch(points[None], frames, strand_index)[0]
+
+    def offsets_batch(self, points: torch.Tensor, frames: torch.Tensor,
+                      strand_index: torch.Tensor | None = None) -> torch.Tensor:
+        """Offsets of several keyframes in one pass. points: (B,N,P,3) canonical strands (one copy
+        per keyframe, or one copy expanded); frames: (B,) keyframe positions -> (B,N,P,3).
+
+        The MLP's input is the concatenation [10 x, 100 dx, enc(u), texel embedding, frame feature]
+        (``in_dim`` wide); its first layer is evaluated block by block, which is the same function
+        with fewer operations: the texel and positional-encoding blocks give one (N,P,hidden) term
+        shared by every keyframe, the frame feature one hidden-wide bias per keyframe, and only the
+        six geometric inputs are multiplied per point (one matrix product per keyframe that also
+        adds the shared term and the keyframe's bias). :meth:`offsets_reference` is the plain concatenated form.
+        """
         c = self.cfg
+        b, n_str, n_pts, _ = points.shape
+        dev, dt = points.device, points.dtype
+        if strand_index is None:
+            strand_index = torch.arange(n_str, device=dev)
+        u, enc = self._encoding(n_pts, dev, dt)
+        first = self.mlp[0]
+        weight = first.weight                                               # (hidden, in_dim)
+        n_enc, n_tex = enc.shape[1], c.texel_dim
+        w_geo, w_enc = weight[:, :6], weight[:, 6:6 + n_enc]
+        w_tex, w_frame = weight[:, 6 + n_enc:6 + n_enc + n_tex], weight[:, 6 + n_enc + n_tex:]
+        shared = (self.texel_embed(strand_index) @ w_tex.T)[:, None, :] + (enc @ w_enc.T)[None]     # (N,P,H)
+        frame_bias = self.frame_lift(self.frame_codes(frames.to(dev))) @ w_frame.T + first.bias   # (B,H)
+        geo = torch.cat([points * 10.0, _segments(points) * 100.0, torch.ones_like(points[..., :1])], -1)
+        shared = shared.reshape(n_str * n_pts, -1)
+        # one keyframe at a time: its (N*P, hidden) activations stay small enough for the cache
+        ab = torch.stack([self.mlp[1:](torch.addmm(shared, geo[i].reshape(n_str * n_pts, 7),
+                                                   torch.cat([w_geo.T, frame_bias[i:i + 1]], 0)))
+                          for i in range(b)])
+        return self._offsets_from(ab.reshape(b, n_str, n_pts, 2).clamp(-1.0, 1.0), points, u)
+
+    def offsets_reference(self, points: torch.Tensor, frame: int,
+                          strand_index: torch.Tensor | None = None) -> torch.Tensor:
+        """:meth:`offsets` with the MLP applied to the concatenated input, as written (the slow
+        reference of :meth:`offsets_batch`, for tests). points: (N,P,3) -> (N,P,3)."""
+        n_str, n_pts, _ = points.shape
         dev = points.device
         if strand_index is None:
             strand_index = torch.arange(n_str, device=dev)
-        u = torch.linspace(0.0, 1.0, n_pts, device=dev, dtype=points.dtype)
-        freqs = (2.0 ** torch.arange(c.n_freqs, device=dev, dtype=points.dtype)) * math.pi
-        enc = torch.cat([u[:, None], torch.sin(u[:, None] * freqs), torch.cos(u[:, None] * freqs),
-                         torch.sin(2 * u[:, None] * freqs), torch.cos(2 * u[:, None] * freqs)], dim=-1)
-        seg = torch.zeros_like(points)
-        seg[:, :-1] = points[:, 1:] - points[:, :-1]
-        seg[:, -1] = seg[:, -2]
+        u, enc = self._encoding(n_pts, dev, points.dtype)
         frame_feat = self.frame_lift(self.frame_codes(torch.tensor([frame], device=dev)))  # (1,F)
         feats = torch.cat([
             points * 10.0,  # decimetres: O(1) inputs
-            seg * 100.0,
+            _segments(points) * 100.0,
             enc[None].expand(n_str, -1, -1),
             self.texel_embed(strand_index)[:, None, :].expand(-1, n_pts, -1),
             frame_feat[:, None, :].expand(n_str, n_pts, -1),
         ], dim=-1)
         ab = self.mlp(feats).clamp(-1.0, 1.0)
-        nrm, bin_ = strand_frames(points)
-        w = deformation_weight(u, c.pinned_fraction)[None, :, None]
-        return w * c.max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
+        return self._offsets_from(ab, points, u)
+
+    def _encoding(self, n_pts: int, dev, dt) -> tuple[torch.Tensor, torch.Tensor]:
+        """(u (P,), positional encoding (P, 1 + 4 n_freqs)) of the root-to-tip coordinate."""
+        u = torch.linspace(0.0, 1.0, n_pts, device=dev, dtype=dt)
+        freqs = (2.0 ** torch.arange(self.cfg.n_freqs, device=dev, dtype=dt)) * math.pi
+        enc = torch.cat([u[:, None], torch.sin(u[:, None] * freqs), torch.cos(u[:, None] * freqs),
+                         torch.sin(2 * u[:, None] * freqs), torch.cos(2 * u[:, None] * freqs)], dim=-1)
+        return u, enc
+
+    def _offsets_from(self, ab: torch.Tensor, points: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Offsets along the strands' normal and binormal from the clamped MLP output ab (...,N,P,2)."""
+        nrm, bin_ = strand_frames(points.reshape(-1, *points.shape[-2:]))
+        nrm, bin_ = nrm.reshape(points.shape), bin_.reshape(points.shape)
+        w = deformation_weight(u, self.cfg.pinned_fraction)[:, None]
+        return w * self.cfg.max_offset * (ab[..., :1] * nrm + ab[..., 1:] * bin_)
 
     def forward(self, points: torch.Tensor, frame: int, strand_index: torch.Tensor | None = None,
                 scale: float = 1.0, detach_input: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
@@ -175,10 +227,18 @@ class DeformationField(nn.Module):
         Returns:
             (x + scale * dx_t with segment lengths restored (N,P,3), scale * dx_t (N,P,3)).
         """
+        frames = torch.tensor([int(frame)], device=points.device)
+        moved, off = self.forward_batch(points[None], frames, strand_index, scale, detach_input)
+        return moved[0], off[0]
+
+    def forward_batch(self, points: torch.Tensor, frames: torch.Tensor, strand_index: torch.Tensor | None = None,
+                      scale: float = 1.0, detach_input: bool = False) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`forward` for several keyframes at once: points (B,N,P,3) (one copy per keyframe,
+        or one expanded), frames (B,) -> (moved (B,N,P,3), scale * dx (B,N,P,3))."""
         if scale == 0.0:
             return points, torch.zeros_like(points)
-        off = self.offsets(points.detach() if detach_input else points, frame, strand_index) * scale
-        seg_len = (points[:, 1:] - points[:, :-1]).norm(dim=-1)
+        off = self.offsets_batch(points.detach() if detach_input else points, frames, strand_index) * scale
+        seg_len = (points[..., 1:, :] - points[..., :-1, :]).norm(dim=-1)
         return rechain(points + off, seg_len), off
 
     def regularizers(self) -> dict[str, torch.Tensor]:

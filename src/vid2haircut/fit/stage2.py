@@ -236,13 +236,13 @@ class Stage2Model(nn.Module):
             still = per_frame if guides is None else guides[None].expand(b, -1, -1, -1)
             return per_frame, torch.zeros_like(per_frame), still
         if guides is None:
-            moved, offs = zip(*(self.deform(per_frame[i], int(frames[i]), scale=scale) for i in range(b)))
-            moved = torch.stack(moved)
-            return moved, torch.stack(offs), moved
-        g_moved, g_offs = zip(*(self.deform(guides, int(f), scale=scale, detach_input=True) for f in frames))
-        offs = torch.stack(g_offs)[:, self._dense_owner]
+            moved, offs = self.deform.forward_batch(per_frame, frames, scale=scale)
+            return moved, offs, moved
+        g_moved, g_offs = self.deform.forward_batch(guides[None].expand(b, -1, -1, -1), frames, scale=scale,
+                                                    detach_input=True)
+        offs = g_offs[:, self._dense_owner]
         seg_len = (per_frame[:, :, 1:] - per_frame[:, :, :-1]).norm(dim=-1)
-        return rechain(per_frame + offs, seg_len), offs, torch.stack(g_moved)
+        return rechain(per_frame + offs, seg_len), offs, g_moved
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
         """All Stage 2 terms at ``step`` (see the module docstring)."""
@@ -259,9 +259,10 @@ class Stage2Model(nn.Module):
         out = render_frames(moved, self.data, frames, drawing)
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
+            # what the guides show: their visibility, which is the opaque render's (no translucent silhouette)
             guides = out if not dense else render_frames(
                 canon[None, :, self.layout.render_index].expand(len(frames), -1, -1, -1), self.data, frames,
-                cfg.render)                                                   # what the guides show
+                dataclasses.replace(cfg.render, silhouette_opacity=1.0))
             self.seen[frames] = texel_visible_fraction(guides.visibility).to(self.seen.dtype)
             self.points_seen[frames] = point_visibility(guides.visibility)
             self._freeze_follow()
