@@ -368,8 +368,14 @@ class Stage2Config:
     see :attr:`depth_align`)."""
     switches: Switches = field(default_factory=Switches)
     """Ablation switches."""
-    render: RenderSettings = field(default_factory=RenderSettings)
-    """Guide rendering settings."""
+    render: RenderSettings = field(default_factory=lambda: RenderSettings(size=224))
+    """Guide rendering settings; the fitting resolution is 224 pixels (Stage 1: 160). Measured on
+    ``benchmarks/quality.py`` (seed 0, Chamfer_pts 1e-4 m^2 / Chamfer_angle, with 1 mm dense
+    strands): 224 gives 0.0342 / 0.2324 on the first draw against 0.0356 / 0.2338 at 160 (better
+    or level on all six) and 0.0323 / 0.2569 on the second against 0.0332 / 0.2577, the targets
+    and renders finer (a pixel spans about 1.9 mm at the hair instead of 2.6 mm) at about 1.1x
+    the Stage 2 time (``benchmarks/RESULTS.md``, "The dense strands' width and the fitting
+    resolution")."""
     mask_threshold: float = 0.5
     """Texels whose baldness-mask value reaches this carry a guide strand."""
     n_dense: int = 10000
