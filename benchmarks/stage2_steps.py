@@ -36,7 +36,8 @@ def step_times(work: Path, sequence: str, canonical: int, dense: int, settings: 
     seq = quality.seq_files(work, sequence)
     stage1 = work / "runs" / sequence / "stage1"
     if not (stage1 / "hairmap.npz").is_file():
-        raise SystemExit(f"{stage1 / 'hairmap.npz'}: no Stage 1 here; run benchmarks/quality.py --variants stage1 first")
+        raise SystemExit(f"{stage1 / 'hairmap.npz'}: no Stage 1 here; run benchmarks/quality.py "
+                         "--variants stage1 first")
     times: list[float] = []
     original = trainer.Trainer.step
 

@@ -154,7 +154,8 @@ class DeformationField(nn.Module):
         with fewer operations: the texel and positional-encoding blocks give one (N,P,hidden) term
         shared by every keyframe, the frame feature one hidden-wide bias per keyframe, and only the
         six geometric inputs are multiplied per point (one matrix product per keyframe that also
-        adds the shared term and the keyframe's bias). :meth:`offsets_reference` is the plain concatenated form.
+        adds the shared term and the keyframe's bias). :meth:`offsets_reference` is the plain
+        concatenated form.
         """
         c = self.cfg
         b, n_str, n_pts, _ = points.shape
