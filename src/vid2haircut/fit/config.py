@@ -372,7 +372,8 @@ class Stage2Config:
     """Guide rendering settings; the fitting resolution is 224 pixels (Stage 1: 160). Measured on
     ``benchmarks/quality.py`` (seed 0, Chamfer_pts 1e-4 m^2 / Chamfer_angle, with 1 mm dense
     strands): 224 gives 0.0342 / 0.2324 on the first draw against 0.0356 / 0.2338 at 160 (better
-    or level on all six; 0.0346 in the default table ``quality_v22``) and 0.0323 / 0.2569 on the
+    or level on all six; 0.0346 / 0.2324 in ``quality_v22`` on an Intel machine, 0.0347 / 0.2315 in
+    the README's table, fitted on an AMD one) and 0.0323 / 0.2569 on the
     second against 0.0332 / 0.2577, the targets and renders finer (a pixel spans about 1.9 mm at
     the hair instead of 2.6 mm), at 1.07x the demo's Stage 2 time together with the cheaper
     deformation field (``benchmarks/RESULTS.md``, "The 224-pixel fitting resolution as Stage 2's
