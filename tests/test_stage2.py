@@ -191,3 +191,24 @@ def test_outside_term_pulls_stray_strands_and_respects_the_gate(toy):
         pts = res.guides[:, model.layout.render_index][None].expand(3, -1, -1, -1)
         left[w] = float(outside_term(pts, toy.data, frames, model.cfg.outside_tolerance))
     assert left[100.0] < 0.7 * left[0.0]
+
+
+def test_pca_change_form_compares_the_change_from_the_start_map(toy):
+    """``pca_change``: the PCA consistency sees z - z_start, so at the start it is zero even for a
+    rough start map, and it pulls an unseen texel's change towards its neighbours' change."""
+    _, m0 = _start(toy)
+    gen = torch.Generator().manual_seed(0)
+    z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
+    plain = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0)
+    change = Stage2Model(toy.data, toy.codec, _cfg(pca_change=True), z0, m0)
+    observed = plain.observed()
+    hair = plain.layout.hair
+    assert bool((hair & ~observed).any()), "the toy must leave some hair texels unobserved"
+    assert float(plain.get_loss_dict(0)["pca"]) > 0.0
+    assert float(change.get_loss_dict(0)["pca"]) == 0.0
+    from vid2haircut.fit.losses import pca_consistency_loss
+    with torch.no_grad():
+        change.zmap.delta.add_(torch.randn(change.zmap.delta.shape, generator=gen, dtype=z0.dtype))
+    got = change.get_loss_dict(0)["pca"]                  # (this render updates what counts as observed)
+    expect = pca_consistency_loss(change.z - z0, hair, change.observed())
+    assert float(got) > 0.0 and float(got) == pytest.approx(float(expect), rel=1e-12)

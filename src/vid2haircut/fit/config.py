@@ -320,6 +320,13 @@ class Stage2Config:
     side-parted styles of both draws (bob 0.0297 and 0.0246 against 0.0318 and 0.0282) and worse on
     the other four (``benchmarks/RESULTS.md``, "The hair that no keyframe shows: too flat in the upper
     back")."""
+    pca_change: bool = False
+    """The PCA consistency (``weights.pca``) compares the change Stage 2 makes to the coefficients
+    (z - z_start) instead of the coefficients themselves: an unobserved texel moves as its
+    neighbours move and keeps the detail of its start map. Off: on the six ``quality_v22`` sequences
+    (seed 0, same AMD machine and Stage 1) it gives 0.0344 / 0.2354 (weight 1) and 0.0344 / 0.2365
+    (weight 10) against 0.0349 / 0.2323 for the default, the same trade as no PCA consistency at all
+    (``benchmarks/RESULTS.md``, "PCA consistency on the change from the start map")."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

@@ -294,7 +294,8 @@ class Stage2Model(nn.Module):
         if cfg.weights.gravity > 0.0:
             losses["gravity"] = gravity_loss(canon[:, self.layout.render_index])
         if cfg.switches.use_pca_consistency:
-            losses["pca"] = pca_consistency_loss(self.z, self.layout.hair, self.observed())
+            z = self.z - self.zmap.z0 if cfg.pca_change else self.z
+            losses["pca"] = pca_consistency_loss(z, self.layout.hair, self.observed())
         if scale > 0.0:
             losses["motion"] = motion_loss(offs)
             ref = (frames == 0).nonzero()
