@@ -27,7 +27,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import quality  # noqa: E402  (the benchmark's sequence layout)
 
-from vid2haircut.fit.config import CARVE_TOLERANCE, LENGTH_SPREAD, Stage2Config  # noqa: E402
+from vid2haircut.fit.components import CARVE_TOLERANCE, LENGTH_SPREAD  # noqa: E402
+from vid2haircut.fit.config import Stage2Config  # noqa: E402
 
 RECORDS = ("stage1.json", "stage2.json")
 

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.fit.config import LossWeights, Stage1Config, Stage2Config
+from vid2haircut.fit.components import LossWeights
+from vid2haircut.fit.config import Stage1Config, Stage2Config
 from vid2haircut.fit.settings import apply_overrides, load_settings
 from vid2haircut.fit.data import downsample_targets, order_keyframes, scale_intrinsics
 from vid2haircut.fit.image_terms import depth_loss, direction_loss, silhouette_loss

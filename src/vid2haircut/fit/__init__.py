@@ -1,7 +1,8 @@
 """Fitting stages: Stage 1 (single view, Im2Haircut baseline) and Stage 2 (Vid2Haircut joint refinement).
 
-- :mod:`.config`: dataclass configs (loss weights, schedule, ablation switches); :mod:`.settings`:
-  ``--settings`` overrides applied to them.
+- :mod:`.config`: the stages' dataclass configs (schedules, learning rates), built from
+  :mod:`.components` (loss weights, render settings, ablation switches, decoding defaults);
+  :mod:`.settings`: ``--settings`` overrides applied to them.
 - :mod:`.data`: keyframes, head poses, targets and cameras as tensors at the fitting resolution.
 - :mod:`.image_terms`, :mod:`.losses`: the image and geometry loss terms; :mod:`.scene`: guides of a
   map, rendering, the image terms of a render.
@@ -12,7 +13,8 @@
   :mod:`.toy`: a tiny known problem for tests.
 """
 
-from vid2haircut.fit.config import LossWeights, RenderSettings, Stage1Config, Stage2Config, Switches
+from vid2haircut.fit.components import LossWeights, RenderSettings, Switches
+from vid2haircut.fit.config import Stage1Config, Stage2Config
 from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.data import FitData, load_fit_data, make_fit_data
 from vid2haircut.fit.stage1 import FitResult, fit_stage1

@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from vid2haircut.fit.carve import carve_strands
-from vid2haircut.fit.config import LossWeights
+from vid2haircut.fit.components import LossWeights
 from vid2haircut.fit.trainer import History
 from vid2haircut.io.atomic import atomic_path, write_image, write_json, write_npz
 from vid2haircut.io.strand_formats import save_strands

@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from vid2haircut.fit.config import RenderSettings
+from vid2haircut.fit.components import RenderSettings
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.image_terms import depth_loss, direction_loss, outside_loss, silhouette_loss
 from vid2haircut.fit.losses import TexelGraph, texel_graph

@@ -20,7 +20,7 @@ from typing import Any, Callable
 import torch
 from torch import Tensor
 
-from vid2haircut.fit.config import LossWeights
+from vid2haircut.fit.components import LossWeights
 
 __all__ = ["History", "weighted_total", "lr_decay_factor", "Trainer"]
 
