@@ -300,3 +300,30 @@ def test_jobs_forward_the_options_and_name_the_failed_log(quality, tmp_path, mon
     with pytest.raises(SystemExit):        # a failed phase stops the next one
         quality.run_jobs([[("b", ["stage1"])], [("a", ["stage2"])]], argv, str(tmp_path), 2)
     assert calls[-1][-3] == "b"
+
+
+def test_mix_components_takes_coarse_and_fine_components_from_two_runs(tmp_path):
+    """benchmarks/mix_components.py: components < split from one run, the rest from the other, the
+    first run's record; maps of different masks are refused."""
+    import torch
+
+    from vid2haircut.fit.outputs import load_hairmap, write_hairmap
+
+    mixer = _bench("mix_components")
+    gen = torch.Generator().manual_seed(0)
+    mask = (torch.rand(6, 6, generator=gen) > 0.3).float()
+    runs = {}
+    for s in ("a", "b"):
+        d = tmp_path / "sweep" / "seq" / s
+        d.mkdir(parents=True)
+        runs[s] = torch.randn(8, 6, 6, generator=gen)
+        write_hairmap(d / "hairmap.npz", runs[s], mask, "fp", "proxy-v1")
+        (d / "stage2.json").write_text(json.dumps({"run": s}))
+    out = mixer.mix(tmp_path, "seq", "a", "b", 3, "mix")
+    z, m, fp = load_hairmap(out / "hairmap.npz")
+    assert torch.equal(z[:3], runs["a"][:3]) and torch.equal(z[3:], runs["b"][3:])
+    assert torch.equal(m, mask) and fp == "fp"
+    assert json.loads((out / "stage2.json").read_text()) == {"run": "a"}
+    write_hairmap(tmp_path / "sweep" / "seq" / "b" / "hairmap.npz", runs["b"], 1.0 - mask, "fp", "proxy-v1")
+    with pytest.raises(ValueError, match="masks"):
+        mixer.mix(tmp_path, "seq", "a", "b", 3, "mix2")

@@ -209,5 +209,28 @@ def test_pca_change_form_compares_the_change_from_the_start_map(toy):
     with torch.no_grad():
         change.zmap.delta.add_(torch.randn(change.zmap.delta.shape, generator=gen, dtype=z0.dtype))
     got = change.get_loss_dict(0)["pca"]                  # (this render updates what counts as observed)
-    expect = pca_consistency_loss(change.z - z0, hair, change.observed())
+    expect = pca_consistency_loss((change.z - z0)[change.cfg.pca_from:], hair, change.observed())
     assert float(got) > 0.0 and float(got) == pytest.approx(float(expect), rel=1e-12)
+
+
+def test_pca_from_leaves_the_coarse_components_to_the_other_terms(toy):
+    """``pca_from``: the PCA consistency covers only components pca_from.. (its gradient on the coarser
+    ones is exactly zero); with pca_from >= K it is zero, and a negative value is refused."""
+    _, m0 = _start(toy)
+    gen = torch.Generator().manual_seed(1)
+    z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
+    k = 2
+    model = Stage2Model(toy.data, toy.codec, _cfg(pca_from=k), z0, m0)
+    model.get_loss_dict(0)                                # a render sets what is observed
+    hair, observed = model.layout.hair, model.observed()
+    assert bool((hair & ~observed).any())
+    pca = model.get_loss_dict(0)["pca"]
+    assert float(pca) == pytest.approx(float(pca_consistency_loss(model.z[k:], hair, model.observed())), rel=1e-12)
+    grad = torch.autograd.grad(pca, model.zmap.delta)[0]
+    assert bool((grad[k:] != 0).any()) and bool((grad[:k] == 0).all())
+    none = Stage2Model(toy.data, toy.codec, _cfg(pca_from=z0.shape[0]), z0, m0)
+    assert float(none.get_loss_dict(0)["pca"]) == 0.0
+    with pytest.raises(ValueError, match="pca_from"):
+        Stage2Model(toy.data, toy.codec, _cfg(pca_from=-1), z0, m0)
+    with pytest.raises(ValueError, match="pca_from"):
+        apply_overrides(model.cfg, {"pca_from": -1})

@@ -193,6 +193,15 @@ class Stage2Config:
     (seed 0, same AMD machine and Stage 1) it gives 0.0344 / 0.2354 (weight 1) and 0.0344 / 0.2365
     (weight 10) against 0.0349 / 0.2323 for the default, the same trade as no PCA consistency at all
     (``benchmarks/RESULTS.md``, "PCA consistency on the change from the start map")."""
+    pca_from: int = 10
+    """First PCA component the consistency (``weights.pca``) covers: 0, every component; k, only the
+    finer components k.. (the coarse ones, length and overall sweep, are left to the anchor and the
+    smoothness); none when the map has no more than k components. 10, the coarse-to-fine split of
+    method.md: on the six ``quality_v22`` sequences (seed 0, same AMD machine and Stage 1) Stage 2
+    gives 0.0346 / 0.2324 against 0.0349 / 0.2323 with every component (Chamfer_pts 1e-4 m^2 /
+    Chamfer_angle), lower in Chamfer_pts on five of six; mixing the two runs' maps showed the angle
+    gain of the term in the fine components and its Chamfer_pts cost mostly in the coarse ones
+    (``benchmarks/RESULTS.md``, "PCA consistency on the fine components only")."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

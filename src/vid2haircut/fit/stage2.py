@@ -105,6 +105,8 @@ class Stage2Model(nn.Module):
         self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
                        .to(dev) if cfg.switches.use_deformation else None)
         check_visibility_unit(cfg.visibility_unit)
+        if cfg.pca_from < 0:
+            raise ValueError(f"Stage 2: pca_from must be >= 0, got {cfg.pca_from}")
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
         pr = int(self.layout.render_index.numel())
@@ -295,7 +297,8 @@ class Stage2Model(nn.Module):
             losses["gravity"] = gravity_loss(canon[:, self.layout.render_index])
         if cfg.switches.use_pca_consistency:
             z = self.z - self.zmap.z0 if cfg.pca_change else self.z
-            losses["pca"] = pca_consistency_loss(z, self.layout.hair, self.observed())
+            losses["pca"] = (pca_consistency_loss(z[cfg.pca_from:], self.layout.hair, self.observed())
+                             if cfg.pca_from < z.shape[0] else z.sum() * 0.0)
         if scale > 0.0:
             losses["motion"] = motion_loss(offs)
             ref = (frames == 0).nonzero()
