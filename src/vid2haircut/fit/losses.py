@@ -179,8 +179,10 @@ def pca_consistency_loss(z: Tensor, hair: Tensor, observed: Tensor) -> Tensor:
 
     Returns:
         Scalar: mean over unobserved hair texels of mean_k (z - zbar)^2, zbar the mean of the
-        hair-bearing 8-neighbours (observed ones detached); 0 when every texel is observed.
+        hair-bearing 8-neighbours (observed ones detached); 0 when every texel is observed or K is 0.
     """
+    if z.shape[0] == 0:
+        return z.sum() * 0.0
     h = hair.to(z.dtype)
     src = torch.where(observed[None], z.detach(), z) * h[None]
     kernel = torch.ones(1, 1, 3, 3, dtype=z.dtype, device=z.device)

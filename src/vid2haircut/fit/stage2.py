@@ -297,8 +297,7 @@ class Stage2Model(nn.Module):
             losses["gravity"] = gravity_loss(canon[:, self.layout.render_index])
         if cfg.switches.use_pca_consistency:
             z = self.z - self.zmap.z0 if cfg.pca_change else self.z
-            losses["pca"] = (pca_consistency_loss(z[cfg.pca_from:], self.layout.hair, self.observed())
-                             if cfg.pca_from < z.shape[0] else z.sum() * 0.0)
+            losses["pca"] = pca_consistency_loss(z[cfg.pca_from:], self.layout.hair, self.observed())
         if scale > 0.0:
             losses["motion"] = motion_loss(offs)
             ref = (frames == 0).nonzero()
