@@ -234,3 +234,29 @@ def test_pca_from_leaves_the_coarse_components_to_the_other_terms(toy):
         Stage2Model(toy.data, toy.codec, _cfg(pca_from=-1), z0, m0)
     with pytest.raises(ValueError, match="pca_from"):
         apply_overrides(model.cfg, {"pca_from": -1})
+
+
+@pytest.mark.parametrize("key,term", [("smooth_direction_from", "smooth_direction"),
+                                      ("smooth_length_from", "smooth_length")])
+def test_smoothness_from_moves_only_the_fine_components(toy, key, term):
+    """``smooth_direction_from`` / ``smooth_length_from``: the smoothness term keeps its value (it
+    sees the whole map) but its gradient on the coarser components is exactly zero; the other
+    smoothness term is untouched; a negative value is refused."""
+    _, m0 = _start(toy)
+    gen = torch.Generator().manual_seed(2)
+    z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
+    k = 2
+    full = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(**{key: k}), z0, m0)
+    split = model.get_loss_dict(0)
+    other = "smooth_length" if term == "smooth_direction" else "smooth_direction"
+    for name in (term, other):
+        assert float(split[name]) == pytest.approx(float(full[name]), rel=1e-12)
+    grad = torch.autograd.grad(split[term], model.zmap.delta)[0]
+    assert bool((grad[k:] != 0).any()) and bool((grad[:k] == 0).all())
+    grad_other = torch.autograd.grad(split[other], model.zmap.delta)[0]
+    assert bool((grad_other[:k] != 0).any())
+    with pytest.raises(ValueError, match=key):
+        Stage2Model(toy.data, toy.codec, _cfg(**{key: -1}), z0, m0)
+    with pytest.raises(ValueError, match=key):
+        apply_overrides(model.cfg, {key: -1})

@@ -202,6 +202,11 @@ class Stage2Config:
     Chamfer_angle), lower in Chamfer_pts on five of six; mixing the two runs' maps showed the angle
     gain of the term in the fine components and its Chamfer_pts cost mostly in the coarse ones
     (``benchmarks/RESULTS.md``, "PCA consistency on the fine components only")."""
+    smooth_direction_from: int = 0
+    """First PCA component the direction smoothness moves: the term sees the strands of the whole map
+    but its gradient reaches only components smooth_direction_from.. (0, every component)."""
+    smooth_length_from: int = 0
+    """The same for the length smoothness (0, every component)."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

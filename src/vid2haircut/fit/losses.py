@@ -85,7 +85,7 @@ def robust(x: Tensor, scale: float) -> Tensor:
 
 def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 100.0,
                       sigma: float = 0.005, length_scale: float = 0.0,
-                      direction_scale: float = 0.0) -> dict[str, Tensor]:
+                      direction_scale: float = 0.0, length_points: Tensor | None = None) -> dict[str, Tensor]:
     """Neighbour-strand smoothness of length and direction.
 
     - Length: |L_i - mean of L over i's 4-neighbours| (metres), a discrete Laplacian of strand
@@ -106,6 +106,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         sigma: distance scale of the direction term, metres.
         length_scale: :func:`robust` scale of the length residuals, metres (0: plain L1).
         direction_scale: :func:`robust` scale of the 1 - cos residuals (0: plain).
+        length_points: (N,P,3) the strands the length term measures, when they are to carry other
+            gradients than ``points`` (the same values, parts of them detached); default ``points``.
 
     Returns:
         {"smooth_length": scalar (metres), "smooth_direction": scalar in [0, 2]}.
@@ -115,7 +117,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         return {"smooth_length": zero, "smooth_direction": zero}
     n = points.shape[0]
     seg = points[:, 1:] - points[:, :-1]                                    # (N,S,3)
-    length = seg.norm(dim=-1).sum(-1)                                       # (N,)
+    lp = points if length_points is None else length_points
+    length = (lp[:, 1:] - lp[:, :-1]).norm(dim=-1).sum(-1)                  # (N,)
     i, j = graph.pairs[:, 0], graph.pairs[:, 1]
     residual, has = _laplacian(length, graph)
     lap = robust(residual.abs(), length_scale)

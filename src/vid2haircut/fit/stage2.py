@@ -105,8 +105,9 @@ class Stage2Model(nn.Module):
         self.deform = (DeformationField(data.n_frames, n, dcfg, seed=cfg.seed)
                        .to(dev) if cfg.switches.use_deformation else None)
         check_visibility_unit(cfg.visibility_unit)
-        if cfg.pca_from < 0:
-            raise ValueError(f"Stage 2: pca_from must be >= 0, got {cfg.pca_from}")
+        for key in ("pca_from", "smooth_direction_from", "smooth_length_from"):
+            if getattr(cfg, key) < 0:
+                raise ValueError(f"Stage 2: {key} must be >= 0, got {getattr(cfg, key)}")
         self.gate = VisibilityGate(cfg.switches.use_visibility)
         self.register_buffer("seen", torch.zeros(data.n_frames, n, device=dev))
         pr = int(self.layout.render_index.numel())
@@ -246,6 +247,14 @@ class Stage2Model(nn.Module):
         seg_len = (per_frame[:, :, 1:] - per_frame[:, :, :-1]).norm(dim=-1)
         return rechain(per_frame + offs, seg_len), offs, g_moved
 
+    def _fine_only(self, canon: Tensor, first: int) -> Tensor:
+        """(N,P,3) the canonical guides ``canon`` (decoded from :attr:`z`) with the same values, through
+        which gradients reach only the components ``first``.. of Z (``canon`` itself for 0)."""
+        if first <= 0:
+            return canon
+        z = self.z
+        return decode_layout(torch.cat((z[:first].detach(), z[first:])), self.layout, self.codec)
+
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
         """All Stage 2 terms at ``step`` (see the module docstring)."""
         cfg = self.cfg
@@ -278,9 +287,11 @@ class Stage2Model(nn.Module):
         losses["penetration"] = pen
         if cfg.switches.use_smoothness:
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
-            losses.update(smoothness_losses(canon[:, self.layout.render_index], self.layout.graph, back,
-                                            length_scale=cfg.smooth_length_scale,
-                                            direction_scale=cfg.smooth_direction_scale))
+            ri = self.layout.render_index
+            losses.update(smoothness_losses(self._fine_only(canon, cfg.smooth_direction_from)[:, ri],
+                                            self.layout.graph, back, length_scale=cfg.smooth_length_scale,
+                                            direction_scale=cfg.smooth_direction_scale,
+                                            length_points=self._fine_only(canon, cfg.smooth_length_from)[:, ri]))
             if cfg.weights.smooth_tip > 0.0:
                 losses["smooth_tip"] = tip_height_loss(canon[:, self.layout.render_index], self.layout.graph,
                                                        cfg.smooth_tip_scale)
