@@ -246,8 +246,9 @@ def test_smoothness_from_moves_only_the_fine_components(toy, key, term):
     gen = torch.Generator().manual_seed(2)
     z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
     k = 2
-    full = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
-    model = Stage2Model(toy.data, toy.codec, _cfg(**{key: k}), z0, m0)
+    every = {"smooth_direction_from": 0, "smooth_length_from": 0}
+    full = Stage2Model(toy.data, toy.codec, _cfg(**every), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(**{**every, key: k}), z0, m0)
     split = model.get_loss_dict(0)
     other = "smooth_length" if term == "smooth_direction" else "smooth_direction"
     for name in (term, other):

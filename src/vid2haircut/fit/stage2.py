@@ -288,10 +288,13 @@ class Stage2Model(nn.Module):
         if cfg.switches.use_smoothness:
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
             ri = self.layout.render_index
-            losses.update(smoothness_losses(self._fine_only(canon, cfg.smooth_direction_from)[:, ri],
-                                            self.layout.graph, back, length_scale=cfg.smooth_length_scale,
+            along = self._fine_only(canon, cfg.smooth_direction_from)
+            length = (along if cfg.smooth_length_from == cfg.smooth_direction_from
+                      else self._fine_only(canon, cfg.smooth_length_from))
+            losses.update(smoothness_losses(along[:, ri], self.layout.graph, back,
+                                            length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale,
-                                            length_points=self._fine_only(canon, cfg.smooth_length_from)[:, ri]))
+                                            length_points=length[:, ri]))
             if cfg.weights.smooth_tip > 0.0:
                 losses["smooth_tip"] = tip_height_loss(canon[:, self.layout.render_index], self.layout.graph,
                                                        cfg.smooth_tip_scale)
