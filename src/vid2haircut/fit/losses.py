@@ -117,8 +117,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         return {"smooth_length": zero, "smooth_direction": zero}
     n = points.shape[0]
     seg = points[:, 1:] - points[:, :-1]                                    # (N,S,3)
-    lp = points if length_points is None else length_points
-    length = (lp[:, 1:] - lp[:, :-1]).norm(dim=-1).sum(-1)                  # (N,)
+    lseg = seg if length_points is None else length_points[:, 1:] - length_points[:, :-1]
+    length = lseg.norm(dim=-1).sum(-1)                                      # (N,)
     i, j = graph.pairs[:, 0], graph.pairs[:, 1]
     residual, has = _laplacian(length, graph)
     lap = robust(residual.abs(), length_scale)

@@ -247,19 +247,19 @@ class Stage2Model(nn.Module):
         seg_len = (per_frame[:, :, 1:] - per_frame[:, :, :-1]).norm(dim=-1)
         return rechain(per_frame + offs, seg_len), offs, g_moved
 
-    def _fine_only(self, canon: Tensor, first: int) -> Tensor:
-        """(N,P,3) the canonical guides ``canon`` (decoded from :attr:`z`) with the same values, through
-        which gradients reach only the components ``first``.. of Z (``canon`` itself for 0)."""
+    def _fine_only(self, z: Tensor, canon: Tensor, first: int) -> Tensor:
+        """(N,P,3) the canonical guides ``canon`` (decoded from the map ``z``) with the same values,
+        through which gradients reach only the components ``first``.. of ``z`` (``canon`` for 0)."""
         if first <= 0:
             return canon
-        z = self.z
         return decode_layout(torch.cat((z[:first].detach(), z[first:])), self.layout, self.codec)
 
     def get_loss_dict(self, step: int) -> dict[str, Tensor]:
         """All Stage 2 terms at ``step`` (see the module docstring)."""
         cfg = self.cfg
         frames = self.frames_for_step(step)
-        canon = self.canonical()                                                   # (N,P,3)
+        z_now = self.z                                                             # (K,R,R)
+        canon = decode_layout(z_now, self.layout, self.codec)                      # (N,P,3)
         scale = self.ramp(step)
         dense = self.draws_dense(step)
         drawn = self.dense() if dense else canon
@@ -288,9 +288,9 @@ class Stage2Model(nn.Module):
         if cfg.switches.use_smoothness:
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
             ri = self.layout.render_index
-            along = self._fine_only(canon, cfg.smooth_direction_from)
+            along = self._fine_only(z_now, canon, cfg.smooth_direction_from)
             length = (along if cfg.smooth_length_from == cfg.smooth_direction_from
-                      else self._fine_only(canon, cfg.smooth_length_from))
+                      else self._fine_only(z_now, canon, cfg.smooth_length_from))
             losses.update(smoothness_losses(along[:, ri], self.layout.graph, back,
                                             length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale,
