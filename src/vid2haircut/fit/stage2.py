@@ -289,14 +289,14 @@ class Stage2Model(nn.Module):
             back = cfg.weights.smooth_length_back / max(cfg.weights.smooth_length, 1e-12)
             ri = self.layout.render_index
             along = self._fine_only(z_now, canon, cfg.smooth_direction_from)
-            length = (along if cfg.smooth_length_from == cfg.smooth_direction_from
-                      else self._fine_only(z_now, canon, cfg.smooth_length_from))
+            length = (None if cfg.smooth_length_from == cfg.smooth_direction_from
+                      else self._fine_only(z_now, canon, cfg.smooth_length_from)[:, ri])
             losses.update(smoothness_losses(along[:, ri], self.layout.graph, back,
                                             length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale,
-                                            length_points=length[:, ri]))
+                                            length_points=length))
             if cfg.weights.smooth_tip > 0.0:
-                losses["smooth_tip"] = tip_height_loss(canon[:, self.layout.render_index], self.layout.graph,
+                losses["smooth_tip"] = tip_height_loss(canon[:, ri], self.layout.graph,
                                                        cfg.smooth_tip_scale)
         if cfg.weights.anchor > 0.0:
             # guides that follow the seen change are held at their start plus that change: the anchor
