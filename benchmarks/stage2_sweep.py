@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     for s in grid:
         ms = [quality.score(decoded(work, n, s), quality.seq_files(work, n)["gt"],
                             work / "sweep" / n / s / "metrics.json") for n in names]
-        cells = [f"{m['chamfer_pts'] * 1e4:.3f}" for m in ms]
+        cells = [f"{m['chamfer_pts'] * 1e4:.4f}" for m in ms]
         reg = [np.mean([m[f"chamfer_pts_{r}"] for m in ms]) * 1e4 for r in ("front", "side", "back")]
         rows.append(f"| {s} | " + " | ".join(cells) + f" | {np.mean([m['chamfer_pts'] for m in ms]) * 1e4:.4f} | "
                     f"{np.mean([m['chamfer_angle'] for m in ms]):.4f} | " + " | ".join(f"{r:.3f}" for r in reg) + " |")

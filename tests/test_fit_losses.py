@@ -136,6 +136,17 @@ def test_texel_graph_and_smoothness():
     assert float(smoothness_losses(cross, two)["smooth_direction"]) == pytest.approx(1.0, abs=1e-5)
     far = torch.stack([line, line + torch.tensor([0.05, 0.0, 0.0])])
     assert float(smoothness_losses(far, two)["smooth_direction"]) == pytest.approx(0.0, abs=1e-6)
+    # per-guide factors: ones change nothing; a zero drops the guide's own length residual, and a
+    # pair takes the mean of its two guides' factors
+    base = smoothness_losses(longer, g, back_weight=1.0)
+    ones = smoothness_losses(longer, g, back_weight=1.0, strand_weight=torch.ones(9))
+    assert all(float(ones[k]) == float(base[k]) for k in base)
+    centre = torch.ones(9)
+    centre[4] = 0.0
+    out = smoothness_losses(longer, g, back_weight=1.0, strand_weight=centre)
+    assert float(out["smooth_length"]) == pytest.approx((4 * 0.05 / 3) / 9, rel=1e-4)
+    half = smoothness_losses(cross, two, strand_weight=torch.tensor([1.0, 0.0]))
+    assert float(half["smooth_direction"]) == pytest.approx(0.5, abs=1e-5)
 
 
 def test_robust_smoothness_keeps_small_residuals_and_releases_edges():

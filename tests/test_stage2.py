@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.fit.losses import pca_consistency_loss
+from vid2haircut.fit.losses import pca_consistency_loss, smoothness_losses
 from vid2haircut.fit.scene import render_frames
 from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2, Stage2Model
@@ -261,3 +261,28 @@ def test_smoothness_from_moves_only_the_fine_components(toy, key, term):
         Stage2Model(toy.data, toy.codec, _cfg(**{key: -1}), z0, m0)
     with pytest.raises(ValueError, match=key):
         apply_overrides(model.cfg, {key: -1})
+
+
+@pytest.mark.parametrize("seen_w,unseen_w", [(0.0, 1.0), (1.0, 0.0), (0.3, 0.5)])
+def test_smooth_seen_weights_scale_observed_and_unobserved_guides(toy, seen_w, unseen_w):
+    """``smooth_seen_weight`` / ``smooth_unseen_weight``: the smoothness terms equal
+    :func:`smoothness_losses` with those factors on the guides some keyframe observed and on the
+    others; 1 and 1 are the plain terms; a negative factor is refused."""
+    z0, m0 = _start(toy)
+    plain = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(smooth_seen_weight=seen_w, smooth_unseen_weight=unseen_w),
+                        z0, m0)
+    out = model.get_loss_dict(0)
+    seen = model._seen_guides()
+    assert bool(seen.any()) and bool((~seen).any())
+    canon = model.canonical()[:, model.layout.render_index]
+    factor = torch.where(seen, seen_w, unseen_w).to(canon.dtype)
+    ref = smoothness_losses(canon, model.layout.graph, model.cfg.weights.smooth_length_back
+                            / model.cfg.weights.smooth_length, length_scale=model.cfg.smooth_length_scale,
+                            direction_scale=model.cfg.smooth_direction_scale, strand_weight=factor)
+    for name in ("smooth_length", "smooth_direction"):
+        assert float(out[name]) == pytest.approx(float(ref[name]), rel=1e-9)
+        assert float(out[name]) < float(plain[name])
+    for key in ("smooth_seen_weight", "smooth_unseen_weight"):
+        with pytest.raises(ValueError, match=key):
+            apply_overrides(model.cfg, {key: -0.5})

@@ -214,6 +214,17 @@ class Stage2Config:
     smooth_length_from: int = 5
     """The same for the length smoothness (0, every component; 5, measured with
     :attr:`smooth_direction_from`)."""
+    smooth_seen_weight: float = 1.0
+    """Factor on both smoothness terms of the guides some keyframe has observed (see
+    :attr:`observed_fraction`; a neighbour pair takes the mean of its two guides): 1, every guide
+    alike; 0, the smoothness shapes only the guides that no keyframe shows, the images alone the
+    others."""
+    smooth_unseen_weight: float = 1.0
+    """The same factor on the guides no keyframe has observed (0: the smoothness shapes only the seen
+    guides). Screened on two ``quality_v22`` sequences (shoulder-length and short, seed 0): 0 gives
+    0.0321 / 0.2407 against 0.0326 / 0.2341 with 1 and 0.0322 / 0.2453 without smoothness; a
+    smooth_seen_weight of 0 gives 0.0327 / 0.2380 (``benchmarks/RESULTS.md``, "Which guides the
+    smoothness cost lies in"). Both stay 1 until fitted on all six sequences."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

@@ -85,7 +85,8 @@ def robust(x: Tensor, scale: float) -> Tensor:
 
 def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 100.0,
                       sigma: float = 0.005, length_scale: float = 0.0,
-                      direction_scale: float = 0.0, length_points: Tensor | None = None) -> dict[str, Tensor]:
+                      direction_scale: float = 0.0, length_points: Tensor | None = None,
+                      strand_weight: Tensor | None = None) -> dict[str, Tensor]:
     """Neighbour-strand smoothness of length and direction.
 
     - Length: |L_i - mean of L over i's 4-neighbours| (metres), a discrete Laplacian of strand
@@ -108,6 +109,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         direction_scale: :func:`robust` scale of the 1 - cos residuals (0: plain).
         length_points: (N,P,3) the strands the length term measures, when they are to carry other
             gradients than ``points`` (the same values, parts of them detached); default ``points``.
+        strand_weight: (N,) factor on each guide's terms (a pair takes the mean of its two guides');
+            the terms keep their unweighted normalisation, so a factor below 1 lowers them. Default 1.
 
     Returns:
         {"smooth_length": scalar (metres), "smooth_direction": scalar in [0, 2]}.
@@ -125,6 +128,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     back = torch.zeros(n, dtype=torch.bool, device=points.device)
     back[i[graph.back]] = True
     w_len = torch.where(back, torch.full_like(lap, back_weight), torch.ones_like(lap))
+    if strand_weight is not None:
+        w_len = w_len * strand_weight
     smooth_length = (w_len * lap)[has].mean()
     t = seg / seg.norm(dim=-1, keepdim=True).clamp_min(1e-9)
     mid = 0.5 * (points[:, 1:] + points[:, :-1])
@@ -134,7 +139,10 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         w = torch.exp(-d2min / (2.0 * sigma * sigma))
     tj = torch.gather(t[j], 1, nn[..., None].expand(-1, -1, 3))
     cos = (t[i] * tj).sum(-1)
-    smooth_direction = (w * robust(1.0 - cos, direction_scale)).sum() / w.sum().clamp_min(1e-9)
+    pen = w * robust(1.0 - cos, direction_scale)
+    if strand_weight is not None:
+        pen = pen * (0.5 * (strand_weight[i] + strand_weight[j]))[:, None]
+    smooth_direction = pen.sum() / w.sum().clamp_min(1e-9)
     return {"smooth_length": smooth_length, "smooth_direction": smooth_direction}
 
 

@@ -21,7 +21,8 @@ __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 # stops a run before it fits rather than when it writes its output.
 _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve_tolerance": (0.0, 1.0e3),
            "carve_min_fraction": (0.0, math.nextafter(1.0, 2.0)), "pca_from": (0, math.inf),
-           "smooth_direction_from": (0, math.inf), "smooth_length_from": (0, math.inf)}
+           "smooth_direction_from": (0, math.inf), "smooth_length_from": (0, math.inf),
+           "smooth_seen_weight": (0.0, math.inf), "smooth_unseen_weight": (0.0, math.inf)}
 # Settings that name one of a few modes, checked the same way.
 _CHOICES = {"depth_align": DEPTH_ALIGNMENTS}
 

@@ -294,7 +294,7 @@ class Stage2Model(nn.Module):
             losses.update(smoothness_losses(along[:, ri], self.layout.graph, back,
                                             length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale,
-                                            length_points=length))
+                                            length_points=length, strand_weight=self._smooth_weight()))
             if cfg.weights.smooth_tip > 0.0:
                 losses["smooth_tip"] = tip_height_loss(canon[:, ri], self.layout.graph,
                                                        cfg.smooth_tip_scale)
@@ -326,6 +326,15 @@ class Stage2Model(nn.Module):
         obs = torch.zeros(res * res, dtype=torch.bool, device=self.zmap.z0.device)
         obs[self.layout.texel_index] = self._seen_guides()
         return obs.reshape(res, res)
+
+    def _smooth_weight(self) -> Tensor | None:
+        """(N,) factor on the smoothness of each guide (``smooth_seen_weight`` on the guides some
+        keyframe observed, ``smooth_unseen_weight`` on the others), or None when both are 1."""
+        cfg = self.cfg
+        if cfg.smooth_seen_weight == 1.0 and cfg.smooth_unseen_weight == 1.0:
+            return None
+        seen = self._seen_guides()
+        return torch.where(seen, cfg.smooth_seen_weight, cfg.smooth_unseen_weight).to(self.zmap.z0.dtype)
 
     def _seen_guides(self) -> Tensor:
         """(N,) bool guides whose visible fraction reached ``observed_fraction`` in some keyframe."""
