@@ -223,8 +223,9 @@ class Stage2Config:
     """The same factor on the guides no keyframe has observed (0: the smoothness shapes only the seen
     guides). Screened on two ``quality_v22`` sequences (shoulder-length and short, seed 0): 0 gives
     0.0321 / 0.2407 against 0.0326 / 0.2341 with 1 and 0.0322 / 0.2453 without smoothness; a
-    smooth_seen_weight of 0 gives 0.0327 / 0.2380 (``benchmarks/RESULTS.md``, "Which guides the
-    smoothness cost lies in"). Both stay 1 until fitted on all six sequences."""
+    smooth_seen_weight of 0 gives 0.0327 / 0.2380. On all six sequences 0 is worse than 1 (0.0345 /
+    0.2380 against 0.0342 / 0.2325; the bob 0.0286 against 0.0261), so both stay 1
+    (``benchmarks/RESULTS.md``, "Which guides the smoothness cost lies in")."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False
