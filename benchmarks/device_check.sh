@@ -9,7 +9,8 @@
 # against the CPU run), render.txt (benchmarks/render_bench.py on cuda), fit.json and prior.json (CPU vs cuda
 # agreement; fit.txt also holds the CUDA test), parallel.log (eight Stage 2 runs of the demo sharing the
 # device, with their wall time). Each step has its own time limit so one slow step cannot starve the
-# others. S1SET / S2SET override the stages' settings (JSON) for a quick dry run on the CPU.
+# others; the parallel runs get what is left of BUDGET seconds (default 540) since the start. S1SET /
+# S2SET override the stages' settings (JSON) for a quick dry run on the CPU.
 set -u
 OUT=${OUT:?set OUT to a folder}
 PY=${PY:-python3}
@@ -17,6 +18,8 @@ export PYTHONPATH=$PWD/src${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 mkdir -p "$OUT"
 
 DEV=${DEV:-cuda}
+BUDGET=${BUDGET:-540}
+START=$(date +%s)
 { nvidia-smi -L; $PY -c "import sys, torch; print(sys.version.split()[0], 'torch', torch.__version__, torch.cuda.is_available())"; nproc; } >"$OUT/stages.log" 2>&1
 
 SEQ="--root resources/demo --subject synth_0000 --seq HAIR --keyframes results/keyframes/synth_0000/HAIR/keyframes.json \
@@ -29,7 +32,7 @@ rm -rf "$W"
   t0=$(date +%s.%N)
   timeout 120 $PY -m vid2haircut stage1 $SEQ --settings "$S1SET" --seed 0 --out $W/stage1 --prior-dir src/vid2haircut/data/prior/default
   t1=$(date +%s.%N)
-  timeout 200 $PY -m vid2haircut stage2 $SEQ --settings "$S2SET" --seed 0 --out $W/stage2 --stage1-dir $W/stage1
+  timeout 300 $PY -m vid2haircut stage2 $SEQ --settings "$S2SET" --seed 0 --out $W/stage2 --stage1-dir $W/stage1
   t2=$(date +%s.%N)
   awk -v a="$t0" -v b="$t1" -v c="$t2" 'BEGIN { printf "stage1_wall_s %.1f\nstage2_wall_s %.1f\n", b - a, c - b }'
 } >>"$OUT/stages.log" 2>&1
@@ -41,10 +44,13 @@ timeout 40 $PY benchmarks/render_bench.py --device $DEV --backend torch --quick 
 timeout 100 $PY benchmarks/fit_device_check.py --out "$OUT/fit.json" >"$OUT/fit.txt" 2>&1
 timeout 50 $PY benchmarks/prior_device_check.py --out "$OUT/prior.json" >>"$OUT/fit.txt" 2>&1
 timeout 90 $PY -m pytest -q -p no:cacheprovider tests/test_render.py -k cuda >>"$OUT/fit.txt" 2>&1
+PAR_S=$(( BUDGET - ($(date +%s) - START) - 15 ))
+[ "$PAR_S" -ge 30 ] || PAR_S=30
 {
+  echo "parallel_timeout_s $PAR_S"
   t0=$(date +%s.%N)
   for s in 1 2 3 4 5 6 7 8; do
-    timeout 200 $PY -m vid2haircut stage2 $SEQ --settings "$S2SET" --seed $s --out $W/par$s --stage1-dir $W/stage1 \
+    timeout $PAR_S $PY -m vid2haircut stage2 $SEQ --settings "$S2SET" --seed $s --out $W/par$s --stage1-dir $W/stage1 \
       >$W/par$s.log 2>&1 &
   done
   wait

@@ -41,7 +41,7 @@ def run_small(device: str) -> dict:
     model = Stage2Model(tp.data, tp.codec, c2, r1.z, r1.mask)
     canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
     frames = torch.tensor([1], device=device)
-    moved, _ = model.deformed(canon, frames, 0.0)
+    moved, _, _ = model.deformed(canon, frames, 0.0)
     out = render_frames(moved, tp.data, frames, c2.render)
     model.gate.set_visibility(out.visibility)
     loss = image_losses(out, tp.data, frames)

@@ -13,13 +13,21 @@ relative error <= 1.2e-7 on [-87, 0], log1p(-a) <= 2.5e-7 on [0, 0.99]; tests/te
 from __future__ import annotations
 
 import math
+import warnings
 
 import numpy as np
 import llvmlite.binding as _llvm
 from llvmlite import ir as _ir
 from numba import njit, types
 from numba.core import cgutils
+from numba.core.errors import NumbaIRAssumptionWarning
 from numba.extending import intrinsic, overload
+
+# When the kernels compile (once per machine), the overloads below, inlined into the compositing
+# loops, trip numba's pedantic check of variable scopes: an internal warning without consequence for
+# the compiled code, which would otherwise fill a fresh machine's first logs with requests to report
+# a numba bug.
+warnings.filterwarnings("ignore", category=NumbaIRAssumptionWarning)
 
 _LN2_HI = 6.93147180369123816490e-01
 _LN2_LO = 1.90821492927058770002e-10
