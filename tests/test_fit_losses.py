@@ -409,3 +409,44 @@ def test_lr_decay_factor_is_a_half_cosine_over_the_last_steps():
     with pytest.raises(ValueError, match="final factor"):
         lr_decay_factor(9, 10, 4, 0.0)
 
+
+
+def _tilted(angle: float, x0: float = 0.0, n: int = 5) -> torch.Tensor:
+    """(n,3) a 10 cm strand from (x0, 0, 0) tilted by ``angle`` (radians) from +z towards +x."""
+    s = torch.linspace(0.0, 0.1, n, dtype=torch.float64)[:, None]
+    d = torch.tensor([math.sin(angle), 0.0, math.cos(angle)], dtype=torch.float64)
+    return torch.tensor([x0, 0.0, 0.0], dtype=torch.float64) + s * d
+
+
+def test_direction_smoothness_forms_measure_against_the_reference():
+    """"relative": only a loss of alignment against the reference pair costs, so a fanned-out start
+    is kept; "change": the difference of the two strands' changes of direction; "absolute" costs
+    the fan itself."""
+    two = texel_graph(torch.tensor([0, 1]), 4)
+    fan = torch.stack([_tilted(0.0), _tilted(0.15, 0.002)])          # neighbours 8.6 degrees apart
+    assert float(smoothness_losses(fan, two)["smooth_direction"]) > 1e-3
+    for form in ("relative", "change"):
+        at_start = smoothness_losses(fan, two, reference=fan, direction_form=form)
+        assert float(at_start["smooth_direction"]) == pytest.approx(0.0, abs=1e-12)
+        moved = fan + torch.tensor([0.0, 0.01, 0.0], dtype=torch.float64)   # both shifted alike
+        same = smoothness_losses(moved, two, reference=fan, direction_form=form)
+        assert float(same["smooth_direction"]) == pytest.approx(0.0, abs=1e-12)
+    # the first strand turns away from its neighbour: both forms cost, and pull the neighbour along
+    wider = torch.stack([_tilted(-0.15), _tilted(0.15, 0.002)]).requires_grad_(True)
+    for form in ("relative", "change"):
+        out = smoothness_losses(wider, two, reference=fan, direction_form=form)["smooth_direction"]
+        assert float(out.detach()) > 1e-4
+        (grad,) = torch.autograd.grad(out, wider)
+        assert float(grad[1, -1, 0]) > 0.0       # descent moves the neighbour's tip towards -x
+    # turning towards each other costs nothing in the relative form, something in the change form
+    closer = torch.stack([_tilted(0.1), _tilted(0.15, 0.002)])
+    rel = smoothness_losses(closer, two, reference=fan, direction_form="relative")["smooth_direction"]
+    chg = smoothness_losses(closer, two, reference=fan, direction_form="change")["smooth_direction"]
+    assert float(rel) == 0.0 and float(chg) > 1e-4
+    with pytest.raises(ValueError, match="reference"):
+        smoothness_losses(fan, two, direction_form="relative")
+    with pytest.raises(ValueError, match="direction_form"):
+        smoothness_losses(fan, two, reference=fan, direction_form="sideways")
+    with pytest.raises(ValueError, match="smooth_direction_form"):
+        apply_overrides(Stage2Config(), {"smooth_direction_form": "sideways"})
+    assert apply_overrides(Stage2Config(), {"smooth_direction_form": "relative"}).smooth_direction_form == "relative"

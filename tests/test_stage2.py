@@ -286,3 +286,22 @@ def test_smooth_seen_weights_scale_observed_and_unobserved_guides(toy, seen_w, u
     for key in ("smooth_seen_weight", "smooth_unseen_weight"):
         with pytest.raises(ValueError, match=key):
             apply_overrides(model.cfg, {key: -0.5})
+
+
+@pytest.mark.parametrize("form", ["relative", "change"])
+def test_smooth_direction_forms_measure_against_the_start(toy, form):
+    """``smooth_direction_form`` "relative" / "change": the direction smoothness compares with the
+    Stage 2 start, so it is zero at the start however rough the start map, and grows once the map
+    moves; the length term is the plain one."""
+    _, m0 = _start(toy)
+    gen = torch.Generator().manual_seed(0)
+    z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
+    plain = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(smooth_direction_form=form), z0, m0)
+    out = model.get_loss_dict(0)
+    assert float(plain["smooth_direction"]) > 0.0
+    assert float(out["smooth_direction"]) == pytest.approx(0.0, abs=1e-12)
+    assert float(out["smooth_length"]) == float(plain["smooth_length"])
+    with torch.no_grad():
+        model.zmap.delta.add_(torch.randn(model.zmap.delta.shape, generator=gen, dtype=z0.dtype))
+    assert float(model.get_loss_dict(0)["smooth_direction"]) > 0.0

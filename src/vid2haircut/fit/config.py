@@ -226,6 +226,12 @@ class Stage2Config:
     smooth_seen_weight of 0 gives 0.0327 / 0.2380. On all six sequences 0 is worse than 1 (0.0345 /
     0.2380 against 0.0342 / 0.2325; the bob 0.0286 against 0.0261), so both stay 1
     (``benchmarks/RESULTS.md``, "Which guides the smoothness cost lies in")."""
+    smooth_direction_form: str = "absolute"
+    """What the direction smoothness penalises of neighbouring segments
+    (:func:`vid2haircut.fit.losses.smoothness_losses`): "absolute", 1 - cos of their directions;
+    "relative", only their loss of alignment against the same pair at the start of Stage 2, so the
+    fanning out of the start's hair is kept; "change", the difference of their changes of direction
+    since the start."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False

@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["penetration_loss", "TexelGraph", "texel_graph", "smoothness_losses", "tip_height_loss", "robust",
+__all__ = ["penetration_loss", "TexelGraph", "texel_graph", "smoothness_losses", "SMOOTH_DIRECTION_FORMS", "tip_height_loss", "robust",
            "pca_consistency_loss", "motion_loss", "anchor_loss", "bend_loss", "gravity_loss"]
 
 
@@ -83,10 +83,15 @@ def robust(x: Tensor, scale: float) -> Tensor:
     return scale * x / (x + scale)
 
 
+SMOOTH_DIRECTION_FORMS = ("absolute", "relative", "change")
+"""What the direction smoothness penalises (:func:`smoothness_losses`)."""
+
+
 def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 100.0,
                       sigma: float = 0.005, length_scale: float = 0.0,
                       direction_scale: float = 0.0, length_points: Tensor | None = None,
-                      strand_weight: Tensor | None = None) -> dict[str, Tensor]:
+                      strand_weight: Tensor | None = None, reference: Tensor | None = None,
+                      direction_form: str = "absolute") -> dict[str, Tensor]:
     """Neighbour-strand smoothness of length and direction.
 
     - Length: |L_i - mean of L over i's 4-neighbours| (metres), a discrete Laplacian of strand
@@ -96,6 +101,12 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
       the nearest segment of its neighbour j (by midpoint, chosen without gradient) should point
       the same way; 1 - cos of the two directions, weighted by exp(-d^2 / (2 sigma^2)) of their
       distance d so that strands that part (a parting, a fringe) are not pulled together.
+      ``direction_form`` chooses what is penalised of each segment pair (see
+      :data:`SMOOTH_DIRECTION_FORMS`): "absolute", 1 - cos (the plain form); "relative", only how
+      much less aligned the pair is than the same pair of ``reference`` strands, relu(cos_ref -
+      cos), so neighbours that fan out at the start may keep fanning out while a guide that turns
+      drags its neighbours along; "change", 0.5 |(t_i - t_i,ref) - (t_j - t_j,ref)|^2, the
+      difference of the two segments' changes of direction since ``reference``.
 
     (Measured on generated sequences: comparing segments by index, or penalising any length
     difference, pulls layered styles such as a bob far from the truth.)
@@ -111,10 +122,20 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
             gradients than ``points`` (the same values, parts of them detached); default ``points``.
         strand_weight: (N,) factor on each guide's terms (a pair takes the mean of its two guides');
             the terms keep their unweighted normalisation, so a factor below 1 lowers them. Default 1.
+        reference: (N,P,3) the strands the "relative" and "change" forms compare with (Stage 2:
+            its start); required by those forms, unused by "absolute".
+        direction_form: "absolute", "relative" or "change".
 
     Returns:
         {"smooth_length": scalar (metres), "smooth_direction": scalar in [0, 2]}.
     """
+    if direction_form not in SMOOTH_DIRECTION_FORMS:
+        raise ValueError(f"smoothness: direction_form must be one of {SMOOTH_DIRECTION_FORMS}, "
+                         f"got {direction_form!r}")
+    if direction_form != "absolute" and (reference is None or reference.shape != points.shape):
+        raise ValueError(f"smoothness: direction_form {direction_form!r} needs reference strands of "
+                         f"shape {tuple(points.shape)}, got "
+                         f"{None if reference is None else tuple(reference.shape)}")
     if graph.pairs.numel() == 0:
         zero = points.sum() * 0.0
         return {"smooth_length": zero, "smooth_direction": zero}
@@ -139,7 +160,18 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
         w = torch.exp(-d2min / (2.0 * sigma * sigma))
     tj = torch.gather(t[j], 1, nn[..., None].expand(-1, -1, 3))
     cos = (t[i] * tj).sum(-1)
-    pen = w * robust(1.0 - cos, direction_scale)
+    if direction_form == "absolute":
+        residual_dir = 1.0 - cos
+    else:
+        with torch.no_grad():
+            rseg = reference[:, 1:] - reference[:, :-1]
+            r = rseg / rseg.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+            rj = torch.gather(r[j], 1, nn[..., None].expand(-1, -1, 3))
+        if direction_form == "relative":
+            residual_dir = torch.relu((r[i] * rj).sum(-1) - cos)
+        else:
+            residual_dir = 0.5 * ((t[i] - r[i]) - (tj - rj)).square().sum(-1)
+    pen = w * robust(residual_dir, direction_scale)
     if strand_weight is not None:
         pen = pen * (0.5 * (strand_weight[i] + strand_weight[j]))[:, None]
     smooth_direction = pen.sum() / w.sum().clamp_min(1e-9)

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
+from vid2haircut.fit.losses import SMOOTH_DIRECTION_FORMS
 
 __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 
@@ -24,7 +25,7 @@ _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve
            "smooth_direction_from": (0, math.inf), "smooth_length_from": (0, math.inf),
            "smooth_seen_weight": (0.0, math.inf), "smooth_unseen_weight": (0.0, math.inf)}
 # Settings that name one of a few modes, checked the same way.
-_CHOICES = {"depth_align": DEPTH_ALIGNMENTS}
+_CHOICES = {"depth_align": DEPTH_ALIGNMENTS, "smooth_direction_form": SMOOTH_DIRECTION_FORMS}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:

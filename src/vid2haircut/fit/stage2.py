@@ -294,7 +294,8 @@ class Stage2Model(nn.Module):
             losses.update(smoothness_losses(along[:, ri], self.layout.graph, back,
                                             length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale,
-                                            length_points=length, strand_weight=self._smooth_weight()))
+                                            length_points=length, strand_weight=self._smooth_weight(),
+                                            reference=self.start, direction_form=cfg.smooth_direction_form))
             if cfg.weights.smooth_tip > 0.0:
                 losses["smooth_tip"] = tip_height_loss(canon[:, ri], self.layout.graph,
                                                        cfg.smooth_tip_scale)
