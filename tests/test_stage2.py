@@ -246,7 +246,8 @@ def test_smoothness_from_moves_only_the_fine_components(toy, key, term):
     gen = torch.Generator().manual_seed(2)
     z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
     k = 2
-    every = {"smooth_direction_from": 0, "smooth_length_from": 0}
+    # the absolute direction form: the relative one is zero, without gradient, at the start
+    every = {"smooth_direction_from": 0, "smooth_length_from": 0, "smooth_direction_form": "absolute"}
     full = Stage2Model(toy.data, toy.codec, _cfg(**every), z0, m0).get_loss_dict(0)
     model = Stage2Model(toy.data, toy.codec, _cfg(**{**every, key: k}), z0, m0)
     split = model.get_loss_dict(0)
@@ -269,9 +270,10 @@ def test_smooth_seen_weights_scale_observed_and_unobserved_guides(toy, seen_w, u
     :func:`smoothness_losses` with those factors on the guides some keyframe observed and on the
     others; 1 and 1 are the plain terms; a negative factor is refused."""
     z0, m0 = _start(toy)
-    plain = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
-    model = Stage2Model(toy.data, toy.codec, _cfg(smooth_seen_weight=seen_w, smooth_unseen_weight=unseen_w),
-                        z0, m0)
+    absolute = {"smooth_direction_form": "absolute"}      # the relative form is zero at the start
+    plain = Stage2Model(toy.data, toy.codec, _cfg(**absolute), z0, m0).get_loss_dict(0)
+    model = Stage2Model(toy.data, toy.codec, _cfg(smooth_seen_weight=seen_w, smooth_unseen_weight=unseen_w,
+                                                  **absolute), z0, m0)
     out = model.get_loss_dict(0)
     seen = model._seen_guides()
     assert bool(seen.any()) and bool((~seen).any())
@@ -279,7 +281,8 @@ def test_smooth_seen_weights_scale_observed_and_unobserved_guides(toy, seen_w, u
     factor = torch.where(seen, seen_w, unseen_w).to(canon.dtype)
     ref = smoothness_losses(canon, model.layout.graph, model.cfg.weights.smooth_length_back
                             / model.cfg.weights.smooth_length, length_scale=model.cfg.smooth_length_scale,
-                            direction_scale=model.cfg.smooth_direction_scale, strand_weight=factor)
+                            direction_scale=model.cfg.smooth_direction_scale, strand_weight=factor,
+                            reference=model.start, direction_form=model.cfg.smooth_direction_form)
     for name in ("smooth_length", "smooth_direction"):
         assert float(out[name]) == pytest.approx(float(ref[name]), rel=1e-9)
         assert float(out[name]) < float(plain[name])
@@ -296,7 +299,7 @@ def test_smooth_direction_forms_measure_against_the_start(toy, form):
     _, m0 = _start(toy)
     gen = torch.Generator().manual_seed(0)
     z0 = 0.5 * torch.randn(toy.z_gt.shape, generator=gen, dtype=toy.z_gt.dtype)
-    plain = Stage2Model(toy.data, toy.codec, _cfg(), z0, m0).get_loss_dict(0)
+    plain = Stage2Model(toy.data, toy.codec, _cfg(smooth_direction_form="absolute"), z0, m0).get_loss_dict(0)
     model = Stage2Model(toy.data, toy.codec, _cfg(smooth_direction_form=form), z0, m0)
     out = model.get_loss_dict(0)
     assert float(plain["smooth_direction"]) > 0.0

@@ -48,7 +48,8 @@ class LossWeights:
     100 pulls layered cuts such as a bob far from the truth, so the back is not weighted up)."""
     smooth_direction: float = 0.3
     """Neighbour-strand smoothness of directions, mean (1 - cos) of nearby segments (method.md: 1;
-    0.3 measured better: at 1 it trades Chamfer_pts for Chamfer_angle)."""
+    0.3 measured better: at 1 it trades Chamfer_pts for Chamfer_angle). Stage 2 uses 3 with its
+    "relative" form (:attr:`vid2haircut.fit.config.Stage2Config.smooth_direction_form`)."""
     smooth_tip: float = 0.0
     """Neighbour-strand smoothness of the tip height, |Laplacian of the tip's y| in metres
     (:func:`vid2haircut.fit.losses.tip_height_loss`; not published). Off: measured on

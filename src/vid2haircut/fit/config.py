@@ -226,12 +226,17 @@ class Stage2Config:
     smooth_seen_weight of 0 gives 0.0327 / 0.2380. On all six sequences 0 is worse than 1 (0.0345 /
     0.2380 against 0.0342 / 0.2325; the bob 0.0286 against 0.0261), so both stay 1
     (``benchmarks/RESULTS.md``, "Which guides the smoothness cost lies in")."""
-    smooth_direction_form: str = "absolute"
+    smooth_direction_form: str = "relative"
     """What the direction smoothness penalises of neighbouring segments
     (:func:`vid2haircut.fit.losses.smoothness_losses`): "absolute", 1 - cos of their directions;
-    "relative", only their loss of alignment against the same pair at the start of Stage 2, so the
-    fanning out of the start's hair is kept; "change", the difference of their changes of direction
-    since the start."""
+    "relative" (default), only their loss of alignment against the same pair at the start of Stage 2,
+    relu(cos_start - cos), so the fanning out of the start's hair is kept while a guide that turns
+    drags its neighbours along; "change", the difference of their changes of direction since the
+    start. Measured on the six ``quality_v22`` sequences (Stage 2 seed 0, one Intel Xeon build,
+    Chamfer_pts 1e-4 m^2 / Chamfer_angle): "relative" with ``weights.smooth_direction`` 3 gives
+    0.0344 / 0.2300 against 0.0346 / 0.2337 for "absolute" at 0.3 (the default before) and
+    0.0346 / 0.2416 without smoothness; on three of them "relative" at 0.3 and 1 and "change" at 0.3
+    were no better (``benchmarks/RESULTS.md``, "The direction smoothness against the start")."""
     observed_fraction: float = 0.05
     """A texel counts as observed when at least this fraction of its segments is visible in some keyframe."""
     extend_unobserved: bool = False
@@ -275,9 +280,10 @@ class Stage2Config:
     dense_silhouette_opacity: float = 1.0
     """Peak opacity of the dense strands in the silhouette term with ``render_dense`` (in place of
     ``render.silhouette_opacity``, which stays the guides')."""
-    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0))
+    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0, smooth_direction=3.0))
     """Loss weights (depth 1 rather than the published 0.1, measured with ``depth_align: affine``;
-    see :attr:`depth_align`)."""
+    see :attr:`depth_align`; direction smoothness 3 with :attr:`smooth_direction_form` "relative",
+    whose penalty is zero for every pair that stays as aligned as at the start)."""
     switches: Switches = field(default_factory=Switches)
     """Ablation switches."""
     render: RenderSettings = field(default_factory=lambda: RenderSettings(size=224))
