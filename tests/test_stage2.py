@@ -156,7 +156,7 @@ def test_gravity_term_is_in_the_loss_only_when_weighted(toy):
     losses = model.get_loss_dict(0)
     from vid2haircut.fit.losses import gravity_loss
     expect = gravity_loss(model.canonical()[:, model.layout.render_index])
-    assert float(losses["gravity"]) == pytest.approx(float(expect), rel=1e-12)
+    assert float(losses["gravity"].detach()) == pytest.approx(float(expect.detach()), rel=1e-12)
 
 
 def test_depth_alignment_reaches_the_depth_term_and_is_checked(toy):
