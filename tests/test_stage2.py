@@ -161,7 +161,7 @@ def test_gravity_term_is_in_the_loss_only_when_weighted(toy):
 
 def test_depth_alignment_reaches_the_depth_term_and_is_checked(toy):
     z0, m0 = _start(toy)
-    terms = {a: float(Stage2Model(toy.data, toy.codec, _cfg(depth_align=a), z0, m0).get_loss_dict(0)["depth"])
+    terms = {a: float(Stage2Model(toy.data, toy.codec, _cfg(depth_align=a), z0, m0).get_loss_dict(0)["depth"].detach())
              for a in ("quantile", "affine")}
     assert terms["quantile"] != terms["affine"]
     with pytest.raises(ValueError, match="depth_align"):
