@@ -1,5 +1,5 @@
 """The anchor term of Stage 2 (:func:`vid2haircut.fit.losses.anchor_loss`) and the head directions
-that its outward-free form uses (:func:`vid2haircut.fit.stage2.head_normals`)."""
+that its outward-free form uses (:func:`vid2haircut.fit.hidden.head_normals`)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from vid2haircut.fit.losses import anchor_loss
-from vid2haircut.fit.stage2 import head_normals
+from vid2haircut.fit.hidden import head_normals
 
 
 def test_anchor_holds_only_hidden_points():

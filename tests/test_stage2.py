@@ -282,7 +282,8 @@ def test_smooth_seen_weights_scale_observed_and_unobserved_guides(toy, seen_w, u
     ref = smoothness_losses(canon, model.layout.graph, model.cfg.weights.smooth_length_back
                             / model.cfg.weights.smooth_length, length_scale=model.cfg.smooth_length_scale,
                             direction_scale=model.cfg.smooth_direction_scale, strand_weight=factor,
-                            reference=model.start, direction_form=model.cfg.smooth_direction_form)
+                            reference_directions=model.start_directions,
+                            direction_form=model.cfg.smooth_direction_form)
     for name in ("smooth_length", "smooth_direction"):
         assert float(out[name]) == pytest.approx(float(ref[name]), rel=1e-9)
         assert float(out[name]) < float(plain[name])

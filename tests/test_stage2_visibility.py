@@ -12,7 +12,8 @@ import torch
 
 from vid2haircut.fit.losses import anchor_loss
 from vid2haircut.fit.scene import image_losses, render_frames
-from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2, harmonic_extension, Stage2Model
+from vid2haircut.fit.hidden import harmonic_extension
+from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2, Stage2Model
 from vid2haircut.fit.visibility import gate_visibility, point_visibility
 
 sys.path.insert(0, str(Path(__file__).parent))

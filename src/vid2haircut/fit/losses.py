@@ -26,7 +26,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-__all__ = ["penetration_loss", "TexelGraph", "texel_graph", "smoothness_losses", "SMOOTH_DIRECTION_FORMS", "tip_height_loss", "robust",
+__all__ = ["penetration_loss", "TexelGraph", "texel_graph", "smoothness_losses", "SMOOTH_DIRECTION_FORMS", "unit_directions", "tip_height_loss", "robust",
            "pca_consistency_loss", "motion_loss", "anchor_loss", "bend_loss", "gravity_loss"]
 
 
@@ -87,10 +87,16 @@ SMOOTH_DIRECTION_FORMS = ("absolute", "relative", "change")
 """What the direction smoothness penalises (:func:`smoothness_losses`)."""
 
 
+def unit_directions(points: Tensor) -> Tensor:
+    """(...,P,3) strand points -> (...,P-1,3) unit directions of their segments."""
+    seg = points[..., 1:, :] - points[..., :-1, :]
+    return seg / seg.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+
+
 def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 100.0,
                       sigma: float = 0.005, length_scale: float = 0.0,
                       direction_scale: float = 0.0, length_points: Tensor | None = None,
-                      strand_weight: Tensor | None = None, reference: Tensor | None = None,
+                      strand_weight: Tensor | None = None, reference_directions: Tensor | None = None,
                       direction_form: str = "absolute") -> dict[str, Tensor]:
     """Neighbour-strand smoothness of length and direction.
 
@@ -103,10 +109,10 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
       distance d so that strands that part (a parting, a fringe) are not pulled together.
       ``direction_form`` chooses what is penalised of each segment pair (see
       :data:`SMOOTH_DIRECTION_FORMS`): "absolute", 1 - cos (the plain form); "relative", only how
-      much less aligned the pair is than the same pair of ``reference`` strands, relu(cos_ref -
+      much less aligned the pair is than the same pair of reference strands, relu(cos_ref -
       cos), so neighbours that fan out at the start may keep fanning out while a guide that turns
       drags its neighbours along; "change", 0.5 |(t_i - t_i,ref) - (t_j - t_j,ref)|^2, the
-      difference of the two segments' changes of direction since ``reference``.
+      difference of the two segments' changes of direction since the reference.
 
     (Measured on generated sequences: comparing segments by index, or penalising any length
     difference, pulls layered styles such as a bob far from the truth.)
@@ -122,8 +128,9 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
             gradients than ``points`` (the same values, parts of them detached); default ``points``.
         strand_weight: (N,) factor on each guide's terms (a pair takes the mean of its two guides');
             the terms keep their unweighted normalisation, so a factor below 1 lowers them. Default 1.
-        reference: (N,P,3) the strands the "relative" and "change" forms compare with (Stage 2:
-            its start); required by those forms, unused by "absolute".
+        reference_directions: (N,P-1,3) :func:`unit_directions` of the strands the "relative" and
+            "change" forms compare with (Stage 2: its start); required by those forms, unused by
+            "absolute".
         direction_form: "absolute", "relative" or "change".
 
     Returns:
@@ -132,17 +139,17 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     if direction_form not in SMOOTH_DIRECTION_FORMS:
         raise ValueError(f"smoothness: direction_form must be one of {SMOOTH_DIRECTION_FORMS}, "
                          f"got {direction_form!r}")
-    if direction_form != "absolute" and (reference is None or reference.shape != points.shape):
-        raise ValueError(f"smoothness: direction_form {direction_form!r} needs reference strands of "
-                         f"shape {tuple(points.shape)}, got "
-                         f"{None if reference is None else tuple(reference.shape)}")
+    want = (*points.shape[:-2], points.shape[-2] - 1, 3)
+    ref = reference_directions
+    if direction_form != "absolute" and (ref is None or tuple(ref.shape) != want):
+        raise ValueError(f"smoothness: direction_form {direction_form!r} needs reference directions of "
+                         f"shape {want}, got {None if ref is None else tuple(ref.shape)}")
     if graph.pairs.numel() == 0:
         zero = points.sum() * 0.0
         return {"smooth_length": zero, "smooth_direction": zero}
     n = points.shape[0]
-    seg = points[:, 1:] - points[:, :-1]                                    # (N,S,3)
-    lseg = seg if length_points is None else length_points[:, 1:] - length_points[:, :-1]
-    length = lseg.norm(dim=-1).sum(-1)                                      # (N,)
+    lp = points if length_points is None else length_points
+    length = (lp[:, 1:] - lp[:, :-1]).norm(dim=-1).sum(-1)                   # (N,)
     i, j = graph.pairs[:, 0], graph.pairs[:, 1]
     residual, has = _laplacian(length, graph)
     lap = robust(residual.abs(), length_scale)
@@ -152,7 +159,7 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     if strand_weight is not None:
         w_len = w_len * strand_weight
     smooth_length = (w_len * lap)[has].mean()
-    t = seg / seg.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    t = unit_directions(points)
     mid = 0.5 * (points[:, 1:] + points[:, :-1])
     with torch.no_grad():
         d2 = torch.cdist(mid[i], mid[j]).square()                          # (E,S,S)
@@ -163,10 +170,8 @@ def smoothness_losses(points: Tensor, graph: TexelGraph, back_weight: float = 10
     if direction_form == "absolute":
         residual_dir = 1.0 - cos
     else:
-        with torch.no_grad():
-            rseg = reference[:, 1:] - reference[:, :-1]
-            r = rseg / rseg.norm(dim=-1, keepdim=True).clamp_min(1e-9)
-            rj = torch.gather(r[j], 1, nn[..., None].expand(-1, -1, 3))
+        r = ref.detach()
+        rj = torch.gather(r[j], 1, nn[..., None].expand(-1, -1, 3))
         if direction_form == "relative":
             residual_dir = torch.relu((r[i] * rj).sum(-1) - cos)
         else:

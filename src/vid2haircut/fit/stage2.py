@@ -27,8 +27,10 @@ from torch import Tensor, nn
 from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig, rechain
+from vid2haircut.fit.hidden import harmonic_extension, head_normals
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
-                                    penetration_loss, smoothness_losses, tip_height_loss)
+                                    penetration_loss, smoothness_losses, tip_height_loss,
+                                    unit_directions)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
                                    outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
@@ -37,49 +39,9 @@ from vid2haircut.fit.visibility import (VisibilityGate, check_visibility_unit, g
                                         texel_visible_fraction)
 from vid2haircut.prior.codec import StrandCodec
 
-__all__ = ["Stage2Model", "fit_stage2", "harmonic_extension"]
+__all__ = ["Stage2Model", "fit_stage2"]
 
 log = logging.getLogger(__name__)
-
-
-@torch.no_grad()
-def head_normals(points: Tensor, sdf: Callable[[Tensor], Tensor], eps: float = 1e-3) -> Tensor:
-    """(...,3) unit gradients of the head's signed distance at ``points`` (central differences of
-    ``eps`` metres): the direction away from the head."""
-    grads = []
-    for axis in range(3):
-        step = torch.zeros(3, dtype=points.dtype, device=points.device)
-        step[axis] = eps
-        grads.append(sdf(points + step) - sdf(points - step))
-    g = torch.stack(grads, -1)
-    return g / g.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-
-
-def harmonic_extension(pairs: Tensor, n: int, known: Tensor, eps: float = 1e-3) -> Tensor:
-    """The matrix that extends values given on ``known`` nodes harmonically to the other nodes.
-
-    On the graph with edges ``pairs``, the unknown values u minimise sum over edges (u_i - u_j)^2
-    with the known values fixed: every unknown node takes the mean of its neighbours (a discrete
-    Laplace equation with Dirichlet values on the known nodes). ``eps`` (times each node's degree)
-    ties unknown nodes weakly to 0, so a region with no known node gets 0 rather than a singular
-    system.
-
-    Args:
-        pairs: (E,2) long node pairs. n: number of nodes. known: (n,) bool.
-
-    Returns:
-        (n_unknown, n_known) float64 matrix E: ``u[~known] = E @ v[known]``.
-    """
-    lap = torch.zeros(n, n, dtype=torch.float64)
-    i, j = pairs[:, 0].cpu(), pairs[:, 1].cpu()
-    lap.index_put_((i, j), torch.full((len(i),), -1.0, dtype=torch.float64), accumulate=True)
-    lap.index_put_((j, i), torch.full((len(i),), -1.0, dtype=torch.float64), accumulate=True)
-    deg = -lap.sum(1)
-    lap += torch.diag(deg)
-    k = known.cpu().bool()
-    u = ~k
-    a = lap[u][:, u] + torch.diag(eps * deg[u].clamp_min(1.0))
-    return torch.linalg.solve(a, -lap[u][:, k])
 
 
 class Stage2Model(nn.Module):
@@ -115,6 +77,8 @@ class Stage2Model(nn.Module):
         self.register_buffer("points_seen", torch.zeros(data.n_frames, n, pr, dtype=torch.bool, device=dev))
         with torch.no_grad():
             self.register_buffer("start", decode_layout(z_init, self.layout, codec)[:, self.layout.render_index])
+        # what the "relative" and "change" direction smoothness compare with
+        self.register_buffer("start_directions", unit_directions(self.start))
         # the anchor leaves hidden points free to move away from the head (cfg.anchor_outward)
         self.outward = head_normals(self.start, data.head.sdf) if cfg.anchor_outward else None
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
@@ -295,7 +259,8 @@ class Stage2Model(nn.Module):
                                             length_scale=cfg.smooth_length_scale,
                                             direction_scale=cfg.smooth_direction_scale,
                                             length_points=length, strand_weight=self._smooth_weight(),
-                                            reference=self.start, direction_form=cfg.smooth_direction_form))
+                                            reference_directions=self.start_directions,
+                                            direction_form=cfg.smooth_direction_form))
             if cfg.weights.smooth_tip > 0.0:
                 losses["smooth_tip"] = tip_height_loss(canon[:, ri], self.layout.graph,
                                                        cfg.smooth_tip_scale)
