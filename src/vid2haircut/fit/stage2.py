@@ -77,8 +77,9 @@ class Stage2Model(nn.Module):
         self.register_buffer("points_seen", torch.zeros(data.n_frames, n, pr, dtype=torch.bool, device=dev))
         with torch.no_grad():
             self.register_buffer("start", decode_layout(z_init, self.layout, codec)[:, self.layout.render_index])
-        # what the "relative" and "change" direction smoothness compare with
-        self.register_buffer("start_directions", unit_directions(self.start))
+        # what the "relative" and "change" direction smoothness compare with (derived from the start,
+        # so not part of a checkpoint)
+        self.register_buffer("start_directions", unit_directions(self.start), persistent=False)
         # the anchor leaves hidden points free to move away from the head (cfg.anchor_outward)
         self.outward = head_normals(self.start, data.head.sdf) if cfg.anchor_outward else None
         # texels that follow the observed change (cfg.extend_unobserved): fixed after the first render
