@@ -278,9 +278,8 @@ def bend_loss(points: Tensor, min_radius: float) -> Tensor:
     Returns:
         Scalar (squared radians).
     """
-    d = points[..., 1:, :] - points[..., :-1, :]
-    length = d.norm(dim=-1)
-    u = d / length.clamp_min(1e-9)[..., None]
+    length = (points[..., 1:, :] - points[..., :-1, :]).norm(dim=-1)
+    u = unit_directions(points)
     turn = (u[..., 1:, :] - u[..., :-1, :]).square().sum(-1)
     allowed = (0.5 * (length[..., 1:] + length[..., :-1]) / min_radius).square()
     return torch.relu(turn - allowed).mean()
@@ -302,8 +301,7 @@ def gravity_loss(points: Tensor, up: int = 1) -> Tensor:
     Returns:
         Scalar in [0, 1].
     """
-    d = points[..., 1:, :] - points[..., :-1, :]
-    return torch.relu(d[..., up] / d.norm(dim=-1).clamp_min(1e-9)).mean()
+    return torch.relu(unit_directions(points)[..., up]).mean()
 
 
 def motion_loss(offsets: Tensor) -> Tensor:
