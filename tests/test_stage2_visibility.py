@@ -158,3 +158,55 @@ def test_unobserved_guides_follow_the_observed_change(toy):
     assert states["ck"]["model"]["follow"].any()
     assert torch.allclose(a.z, c.z, atol=1e-6) and not torch.allclose(a.z, fit_stage2(
         toy.data, toy.codec, _cfg(), z0, m0, progress=False).z, atol=1e-4)
+
+
+def test_hidden_direction_loss_matches_the_rendered_direction_convention():
+    from vid2haircut.fit.image_terms import hidden_direction_loss
+    from vid2haircut.render import render_strands
+
+    K = torch.tensor([[[100.0, 0.0, 32.0], [0.0, 100.0, 32.0], [0.0, 0.0, 1.0]]])
+    eye = torch.eye(4)[None]
+    x = torch.linspace(-0.1, 0.1, 8)
+    strand = torch.stack([x, 0.5 * x, torch.ones(8)], -1)[None, None]       # slope 0.5 in the image
+    rendered = render_strands(strand, K, eye, 64, 64, strand_width=0.004).direction[0, 34, 36]
+    hidden = torch.ones(1, 1, 7, dtype=torch.bool)
+    weight = torch.ones(1, 64, 64)
+    along = rendered.expand(1, 64, 64, 2)
+    assert abs(float(hidden_direction_loss(strand, hidden, K, eye, along, weight, None))) < 1e-5
+    across = -along                                                          # doubled angle + 180 deg: 90 deg off
+    assert float(hidden_direction_loss(strand, hidden, K, eye, across, weight, None)) == pytest.approx(2.0, abs=1e-5)
+    # shown segments, unweighted pixels and segments behind the head pay nothing
+    assert float(hidden_direction_loss(strand, ~hidden, K, eye, across, weight, None)) == 0.0
+    assert float(hidden_direction_loss(strand, hidden, K, eye, across, 0.0 * weight, None)) == 0.0
+    head = torch.full((1, 64, 64), 0.5)
+    assert float(hidden_direction_loss(strand, hidden, K, eye, across, weight, head)) == 0.0
+    # the gradient turns the strand towards the target: a step lowers the loss
+    p = strand.clone().requires_grad_(True)
+    tilted = torch.tensor([1.0, 0.0]).expand(1, 64, 64, 2)                    # horizontal
+    loss = hidden_direction_loss(p, hidden, K, eye, tilted, weight, None)
+    loss.backward()
+    with torch.no_grad():
+        after = hidden_direction_loss(p - 1e-3 * p.grad / p.grad.norm(), hidden, K, eye, tilted, weight, None)
+    assert float(after) < float(loss)
+
+
+def test_hidden_direction_term_reaches_only_the_strands_the_gate_shuts(toy):
+    z0, m0 = _start(toy)
+    cfg = _cfg(weights={"hidden_direction": 1.0}, visibility_unit="strand")
+    model = Stage2Model(toy.data, toy.codec, cfg, z0, m0)
+    canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
+    frames = torch.tensor([1])
+    moved, _, _ = model.deformed(canon, frames, 0.0)
+    out = render_frames(moved, toy.data, frames, model.cfg.render)
+    model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
+    term = model._hidden_direction(canon, moved, frames, out.visibility)
+    term.backward()
+    seen = out.visibility[0].any(-1)
+    g = canon.grad.norm(dim=-1)
+    assert (~seen).any() and float(term) > 0.0
+    assert float(g[seen].max()) == 0.0                                     # the gated strands get nothing from it
+    assert float(g[~seen].max()) > 0.0                                     # the shut ones do
+    assert "hidden_direction" in model.get_loss_dict(0)
+    off = Stage2Model(toy.data, toy.codec, _cfg(weights={"hidden_direction": 1.0},
+                                                switches={"use_visibility": False}), z0, m0)
+    assert "hidden_direction" not in off.get_loss_dict(0)                  # nothing is hidden from the gate

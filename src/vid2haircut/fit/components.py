@@ -35,6 +35,11 @@ class LossWeights:
     depth: float = 0.1
     """L1 between the rendered depth, aligned to the target's relative scale, and the target inside both
     masks (Vid2Haircut: 0.1; Stage 2 defaults to 1 with its least-squares alignment)."""
+    hidden_direction: float = 0.0
+    """Stage 2 with visibility masking: the segments a keyframe does not show (so the gate keeps that
+    keyframe's image terms from them) run along the target direction of the pixel they lie under, the
+    direction of the hair covering them (:func:`vid2haircut.fit.image_terms.hidden_direction_loss`;
+    not published)."""
     outside: float = 0.0
     """Strand points a keyframe shows outside its target silhouette pay their distance to it, in
     fitting pixels beyond ``outside_tolerance`` (:func:`vid2haircut.fit.image_terms.outside_loss`; not

@@ -280,6 +280,10 @@ class Stage2Config:
     dense_silhouette_opacity: float = 1.0
     """Peak opacity of the dense strands in the silhouette term with ``render_dense`` (in place of
     ``render.silhouette_opacity``, which stays the guides')."""
+    dense_vis_weight: float = 0.3
+    """With ``render_dense``: the compositing weight at which a dense strand's segment counts as
+    visible to the visibility gate (in place of ``render.vis_weight``, which stays the guides' and
+    drives the observed-texel test and the anchor)."""
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0, smooth_direction=3.0))
     """Loss weights (depth 1 rather than the published 0.1, measured with ``depth_align: affine``;
     see :attr:`depth_align`; direction smoothness 3 with :attr:`smooth_direction_form` "relative",

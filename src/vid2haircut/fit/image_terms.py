@@ -25,7 +25,7 @@ from torch import Tensor
 from vid2haircut.render.project import project_points
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "quantile_normalize", "DEPTH_ALIGNMENTS",
-           "outside_loss", "shown_pixels"]
+           "outside_loss", "shown_pixels", "hidden_direction_loss"]
 
 
 def silhouette_loss(pred: Tensor, target: Tensor) -> Tensor:
@@ -161,3 +161,44 @@ def outside_loss(points: Tensor, K: Tensor, cam_from_head: Tensor, outside: Tens
     d = F.grid_sample(outside[:, None].to(grid), grid, mode="bilinear", align_corners=True,
                       padding_mode="border")[:, 0, 0]                         # (B,N*P)
     return (torch.relu(d - tolerance) * valid).sum() / max(b * n * p, 1)
+
+
+def hidden_direction_loss(points: Tensor, hidden: Tensor, K: Tensor, cam_from_head: Tensor, target_dir: Tensor,
+                          weight: Tensor, head_depth: Tensor | None, near: float = 1e-2) -> Tensor:
+    """Hidden segments run along the hair that covers them: the 2D direction of each segment that a
+    keyframe does not show, against the target direction at its midpoint's pixel.
+
+    Hair lies in layers that run alongside each other, so where a segment is hidden by hair in front
+    of it, the target orientation of that pixel (the covering hair's) is the best guess of its own
+    projected direction. This term carries only that: no silhouette or depth, which belong to the
+    visible hair.
+
+    Args:
+        points: (B,N,P,3) strands in the canonical head frame, one set per keyframe (metres).
+        hidden: (B,N,P-1) bool segments the keyframe does not show (hidden by hair in front of them).
+        K: (B,3,3) intrinsics; cam_from_head: (B,4,4).
+        target_dir: (B,H,W,2) target doubled-angle unit vectors (cos 2a, sin 2a).
+        weight: (B,H,W) >= 0 per-pixel weight (target mask times confidence).
+        head_depth: (B,H,W) camera z of the head surface (+inf off it) or None: segments whose midpoint
+            lies behind the head pay nothing.
+
+    Returns:
+        Scalar weighted mean over hidden segments of 1 - cos(2 (a - a_target)) in [0, 2] (undirected);
+        0 when no hidden segment lands on a weighted pixel.
+    """
+    b, n, p, _ = points.shape
+    h, w = target_dir.shape[1:3]
+    uv, z = project_points(points.reshape(b, n * p, 3), K, cam_from_head, near)
+    uv = uv.reshape(b, n, p, 2)
+    mid = 0.5 * (uv[:, :, 1:] + uv[:, :, :-1]).reshape(b, -1, 2)
+    zm = 0.5 * (z.reshape(b, n, p)[:, :, 1:] + z.reshape(b, n, p)[:, :, :-1]).reshape(b, -1)
+    shown, pix = shown_pixels(mid.detach(), zm.detach(), head_depth, w, h, near)
+    wt = torch.gather(weight.reshape(b, -1), 1, pix) * (shown & hidden.reshape(b, -1))
+    seg = (uv[:, :, 1:] - uv[:, :, :-1]).reshape(b, -1, 2)
+    length2 = seg.square().sum(-1)
+    wt = wt * (length2.detach() > 1e-8)
+    doubled = torch.stack([seg[..., 0].square() - seg[..., 1].square(), 2.0 * seg[..., 0] * seg[..., 1]], -1)
+    doubled = doubled / length2.clamp_min(1e-8)[..., None]
+    tgt = torch.gather(target_dir.reshape(b, -1, 2), 1, pix[..., None].expand(-1, -1, 2))
+    err = 1.0 - (doubled * tgt).sum(-1)
+    return (err * wt).sum() / wt.sum().clamp_min(1e-6)

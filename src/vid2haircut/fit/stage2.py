@@ -28,6 +28,7 @@ from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig, rechain
 from vid2haircut.fit.hidden import harmonic_extension, head_normals
+from vid2haircut.fit.image_terms import hidden_direction_loss
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
                                     penetration_loss, smoothness_losses, tip_height_loss,
                                     unit_directions)
@@ -231,7 +232,8 @@ class Stage2Model(nn.Module):
         moved, offs, moved_guides = self.deformed(drawn[:, self.layout.render_index], frames, scale,
                                                   canon[:, self.layout.render_index] if dense else None)
         drawing = cfg.render if not dense else dataclasses.replace(
-            cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity)
+            cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity,
+            vis_weight=cfg.dense_vis_weight)
         out = render_frames(moved, self.data, frames, drawing)
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
@@ -244,6 +246,9 @@ class Stage2Model(nn.Module):
             self._freeze_follow()
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames, cfg.depth_align, cfg.depth_head)
+        if cfg.weights.hidden_direction > 0.0 and cfg.switches.use_visibility:
+            losses["hidden_direction"] = self._hidden_direction(drawn[:, self.layout.render_index], moved, frames,
+                                                                out.visibility)
         if cfg.weights.outside > 0.0:
             losses["outside"] = outside_term(moved, self.data, frames, cfg.outside_tolerance)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
@@ -286,6 +291,21 @@ class Stage2Model(nn.Module):
                 losses["canonical"] = motion_loss(offs[int(ref[0, 0])])
             losses["frame_code"] = self.deform.regularizers()["frame_code"]
         return losses
+
+    def _hidden_direction(self, drawn: Tensor, moved: Tensor, frames: Tensor, visibility: Tensor) -> Tensor:
+        """:func:`hidden_direction_loss` of the segments the gate shuts in each frame.
+
+        drawn: (N,Pr,3) canonical strands as drawn; moved: (B,N,Pr,3) their per-frame copies (whose
+        gradient the gate masks); the term reaches ``drawn`` directly, the per-frame displacement
+        held fixed. visibility: (B,N,Pr-1) the render's segment visibility.
+        """
+        data = self.data
+        fr = frames.to(data.K.device)
+        hidden = ~gate_visibility(visibility, self.cfg.visibility_unit)
+        free = drawn[None] + (moved - drawn[None]).detach()
+        weight = data.confidence[fr] * (data.mask[fr] > 0.5)
+        hd = data.head_depth[fr] if data.head_depth is not None else None
+        return hidden_direction_loss(free, hidden, data.K[fr], data.cam_from_head[fr], data.direction[fr], weight, hd)
 
     def observed(self) -> Tensor:
         """(R,R) bool texels whose guide was seen (visible fraction >= observed_fraction) in some keyframe."""
