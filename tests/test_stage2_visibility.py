@@ -4,6 +4,7 @@ segments and strands, the anchor holds unseen points, unobserved guides follow t
 from __future__ import annotations
 
 import copy
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -190,22 +191,30 @@ def test_hidden_direction_loss_matches_the_rendered_direction_convention():
     assert float(after) < float(loss)
 
 
-def test_hidden_direction_term_reaches_only_the_strands_the_gate_shuts(toy):
+@pytest.mark.parametrize("source", ["render", "target"])
+def test_hidden_direction_term_reaches_only_the_strands_the_gate_shuts(toy, source):
     z0, m0 = _start(toy)
-    cfg = _cfg(weights={"hidden_direction": 1.0}, visibility_unit="strand")
+    cfg = _cfg(weights={"hidden_direction": 1.0}, visibility_unit="strand", hidden_direction_from=source)
     model = Stage2Model(toy.data, toy.codec, cfg, z0, m0)
     canon = model.canonical()[:, model.layout.render_index].detach().requires_grad_(True)
     frames = torch.tensor([1])
     moved, _, _ = model.deformed(canon, frames, 0.0)
     out = render_frames(moved, toy.data, frames, model.cfg.render)
     model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
-    term = model._hidden_direction(canon, moved, frames, out.visibility)
+    term = model._hidden_direction(canon, moved, frames, out)
     term.backward()
     seen = out.visibility[0].any(-1)
     g = canon.grad.norm(dim=-1)
     assert (~seen).any() and float(term) > 0.0
     assert float(g[seen].max()) == 0.0                                     # the gated strands get nothing from it
     assert float(g[~seen].max()) > 0.0                                     # the shut ones do
+    if source == "render":
+        # the rendered direction is a fixed target: nothing reaches the render's own strands through it,
+        # and no keyframe image enters (a different target direction map gives the same term)
+        other = dataclasses.replace(toy.data, direction=-toy.data.direction)
+        flip = Stage2Model(other, toy.codec, cfg, z0, m0)
+        assert float(flip._hidden_direction(canon.detach(), moved.detach(), frames, out)) == pytest.approx(
+            float(term), abs=1e-6)
     assert "hidden_direction" in model.get_loss_dict(0)
     off = Stage2Model(toy.data, toy.codec, _cfg(weights={"hidden_direction": 1.0},
                                                 switches={"use_visibility": False}), z0, m0)

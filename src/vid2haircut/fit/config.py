@@ -284,10 +284,20 @@ class Stage2Config:
     """With ``render_dense``: the compositing weight at which a dense strand's segment counts as
     visible to the visibility gate (in place of ``render.vis_weight``, which stays the guides' and
     drives the observed-texel test and the anchor)."""
-    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0, smooth_direction=3.0))
+    hidden_direction_from: str = "render"
+    """What the hidden-direction term (``weights.hidden_direction``) aligns a segment the gate shuts
+    with: "render", the rendered direction of the fitted hair drawn over it in that keyframe
+    (detached; a smoothness across layers, so no keyframe's image terms reach what it does not
+    show), or "target", that keyframe's target direction at its pixel (measured, not kept:
+    ``benchmarks/RESULTS.md``, "The segments the visibility gate shuts")."""
+    weights: LossWeights = field(default_factory=lambda: LossWeights(depth=1.0, smooth_direction=3.0,
+                                                                     hidden_direction=0.1))
     """Loss weights (depth 1 rather than the published 0.1, measured with ``depth_align: affine``;
     see :attr:`depth_align`; direction smoothness 3 with :attr:`smooth_direction_form` "relative",
-    whose penalty is zero for every pair that stays as aligned as at the start)."""
+    whose penalty is zero for every pair that stays as aligned as at the start; the hidden-direction
+    term 0.1, with visibility masking only, against the rendered direction over the segment
+    (:attr:`hidden_direction_from`); measured on ``benchmarks/quality.py``'s six sequences in
+    ``benchmarks/RESULTS.md``, "The segments the visibility gate shuts")."""
     switches: Switches = field(default_factory=Switches)
     """Ablation switches."""
     render: RenderSettings = field(default_factory=lambda: RenderSettings(size=224))

@@ -25,7 +25,8 @@ _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve
            "smooth_direction_from": (0, math.inf), "smooth_length_from": (0, math.inf),
            "smooth_seen_weight": (0.0, math.inf), "smooth_unseen_weight": (0.0, math.inf)}
 # Settings that name one of a few modes, checked the same way.
-_CHOICES = {"depth_align": DEPTH_ALIGNMENTS, "smooth_direction_form": SMOOTH_DIRECTION_FORMS}
+_CHOICES = {"depth_align": DEPTH_ALIGNMENTS, "smooth_direction_form": SMOOTH_DIRECTION_FORMS,
+            "hidden_direction_from": ("render", "target")}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
