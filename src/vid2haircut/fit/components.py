@@ -37,9 +37,10 @@ class LossWeights:
     masks (Vid2Haircut: 0.1; Stage 2 defaults to 1 with its least-squares alignment)."""
     hidden_direction: float = 0.0
     """Stage 2 with visibility masking: the segments a keyframe does not show (so the gate keeps that
-    keyframe's image terms from them) run along the target direction of the pixel they lie under, the
-    direction of the hair covering them (:func:`vid2haircut.fit.image_terms.hidden_direction_loss`;
-    not published)."""
+    keyframe's image terms from them) run along the direction of the hair covering them, by default
+    the rendered direction of the fitted hair drawn over them
+    (:attr:`vid2haircut.fit.config.Stage2Config.hidden_direction_from`,
+    :func:`vid2haircut.fit.image_terms.hidden_direction_loss`; not published). Stage 2 uses 0.1."""
     outside: float = 0.0
     """Strand points a keyframe shows outside its target silhouette pay their distance to it, in
     fitting pixels beyond ``outside_tolerance`` (:func:`vid2haircut.fit.image_terms.outside_loss`; not

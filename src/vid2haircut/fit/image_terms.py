@@ -169,16 +169,16 @@ def hidden_direction_loss(points: Tensor, hidden: Tensor, K: Tensor, cam_from_he
     keyframe does not show, against the target direction at its midpoint's pixel.
 
     Hair lies in layers that run alongside each other, so where a segment is hidden by hair in front
-    of it, the target orientation of that pixel (the covering hair's) is the best guess of its own
-    projected direction. This term carries only that: no silhouette or depth, which belong to the
-    visible hair.
+    of it, the orientation of that pixel (the covering hair's: Stage 2 passes its own rendered
+    direction map, detached, or the keyframe's target) is the best guess of its own projected
+    direction. This term carries only that: no silhouette or depth, which belong to the visible hair.
 
     Args:
         points: (B,N,P,3) strands in the canonical head frame, one set per keyframe (metres).
         hidden: (B,N,P-1) bool segments the keyframe does not show (hidden by hair in front of them).
         K: (B,3,3) intrinsics; cam_from_head: (B,4,4).
-        target_dir: (B,H,W,2) target doubled-angle unit vectors (cos 2a, sin 2a).
-        weight: (B,H,W) >= 0 per-pixel weight (target mask times confidence).
+        target_dir: (B,H,W,2) doubled-angle unit vectors (cos 2a, sin 2a) to align with.
+        weight: (B,H,W) >= 0 per-pixel weight (where ``target_dir`` holds a direction).
         head_depth: (B,H,W) camera z of the head surface (+inf off it) or None: segments whose midpoint
             lies behind the head pay nothing.
 
