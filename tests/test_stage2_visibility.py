@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from vid2haircut.fit.losses import anchor_loss
-from vid2haircut.fit.scene import image_losses, render_frames
+from vid2haircut.fit.scene import hidden_direction_term, image_losses, render_frames
 from vid2haircut.fit.hidden import harmonic_extension
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2, Stage2Model
 from vid2haircut.fit.visibility import gate_visibility, point_visibility
@@ -201,7 +201,8 @@ def test_hidden_direction_term_reaches_only_the_strands_the_gate_shuts(toy, sour
     moved, _, _ = model.deformed(canon, frames, 0.0)
     out = render_frames(moved, toy.data, frames, model.cfg.render)
     model.gate.set_visibility(gate_visibility(out.visibility, model.cfg.visibility_unit))
-    term = model._hidden_direction(canon, moved, frames, out)
+    hidden = ~gate_visibility(out.visibility, model.cfg.visibility_unit)
+    term = hidden_direction_term(canon, moved, hidden, out, toy.data, frames, source)
     term.backward()
     seen = out.visibility[0].any(-1)
     g = canon.grad.norm(dim=-1)
@@ -212,9 +213,8 @@ def test_hidden_direction_term_reaches_only_the_strands_the_gate_shuts(toy, sour
         # the rendered direction is a fixed target: nothing reaches the render's own strands through it,
         # and no keyframe image enters (a different target direction map gives the same term)
         other = dataclasses.replace(toy.data, direction=-toy.data.direction)
-        flip = Stage2Model(other, toy.codec, cfg, z0, m0)
-        assert float(flip._hidden_direction(canon.detach(), moved.detach(), frames, out)) == pytest.approx(
-            float(term), abs=1e-6)
+        assert float(hidden_direction_term(canon.detach(), moved.detach(), hidden, out, other, frames,
+                                           source)) == pytest.approx(float(term), abs=1e-6)
     assert "hidden_direction" in model.get_loss_dict(0)
     off = Stage2Model(toy.data, toy.codec, _cfg(weights={"hidden_direction": 1.0},
                                                 switches={"use_visibility": False}), z0, m0)

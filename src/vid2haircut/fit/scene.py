@@ -15,13 +15,15 @@ from torch import Tensor, nn
 
 from vid2haircut.fit.components import RenderSettings
 from vid2haircut.fit.data import FitData
-from vid2haircut.fit.image_terms import depth_loss, direction_loss, outside_loss, silhouette_loss
+from vid2haircut.fit.image_terms import (depth_loss, direction_loss, hidden_direction_loss, outside_loss,
+                                         silhouette_loss)
 from vid2haircut.fit.losses import TexelGraph, texel_graph
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "ZMap",
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "hidden_direction_term",
+           "HIDDEN_DIRECTION_SOURCES", "ZMap",
            "length_step_gain", "z_optimizer"]
 
 
@@ -126,6 +128,33 @@ def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: 
             "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
             "depth": depth_loss(pred_depth, pred_mask, data.depth[fr], data.depth_valid[fr], align=depth_align,
                                 quantile_mask=hair)}
+
+
+HIDDEN_DIRECTION_SOURCES = ("render", "target")
+"""What :func:`hidden_direction_term` aligns hidden segments with (``Stage2Config.hidden_direction_from``)."""
+
+
+def hidden_direction_term(drawn: Tensor, moved: Tensor, hidden: Tensor, out: StrandRender, data: FitData,
+                          frames: Tensor, source: str = "render") -> Tensor:
+    """:func:`~vid2haircut.fit.image_terms.hidden_direction_loss` of the ``hidden`` segments of keyframes ``frames`` (B,).
+
+    drawn: (N,P,3) canonical strands; moved: (B,N,P,3) their per-frame copies, of which only the
+    per-frame displacement is taken (held fixed: the term reaches ``drawn`` directly); hidden:
+    (B,N,P-1) bool segments each keyframe does not show; out: the keyframes' render.
+    ``source`` "render": the rendered direction of the hair drawn over each segment (detached, where
+    the render has hair), so no keyframe's image reaches a segment it does not show; "target": the
+    keyframe's target direction, weighted by confidence inside the target mask.
+    """
+    fr = frames.to(data.K.device)
+    free = drawn[None] + (moved - drawn[None]).detach()
+    if source == "render":
+        target = out.direction.detach()                                          # unit where not empty
+        weight = (out.mask.detach() & (target.square().sum(-1) > 1e-12)).to(target.dtype)
+    else:
+        target = data.direction[fr]
+        weight = data.confidence[fr] * (data.mask[fr] > 0.5)
+    head = data.head_depth[fr] if data.head_depth is not None else None
+    return hidden_direction_loss(free, hidden, data.K[fr], data.cam_from_head[fr], target, weight, head)
 
 
 def outside_term(points: Tensor, data: FitData, frames: Tensor, tolerance: float) -> Tensor:

@@ -14,6 +14,7 @@ from typing import Any
 
 from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
 from vid2haircut.fit.losses import SMOOTH_DIRECTION_FORMS
+from vid2haircut.fit.scene import HIDDEN_DIRECTION_SOURCES
 
 __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 
@@ -26,7 +27,7 @@ _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve
            "smooth_seen_weight": (0.0, math.inf), "smooth_unseen_weight": (0.0, math.inf)}
 # Settings that name one of a few modes, checked the same way.
 _CHOICES = {"depth_align": DEPTH_ALIGNMENTS, "smooth_direction_form": SMOOTH_DIRECTION_FORMS,
-            "hidden_direction_from": ("render", "target")}
+            "hidden_direction_from": HIDDEN_DIRECTION_SOURCES}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:

@@ -28,18 +28,16 @@ from vid2haircut.fit.config import Stage2Config
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.deform import DeformationField, DeformConfig, rechain
 from vid2haircut.fit.hidden import harmonic_extension, head_normals
-from vid2haircut.fit.image_terms import hidden_direction_loss
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
                                     penetration_loss, smoothness_losses, tip_height_loss,
                                     unit_directions)
 from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
-                                   outside_term, z_optimizer)
+                                   hidden_direction_term, outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer, lr_decay_factor
 from vid2haircut.fit.visibility import (VisibilityGate, check_visibility_unit, gate_visibility, point_visibility,
                                         texel_visible_fraction)
 from vid2haircut.prior.codec import StrandCodec
-from vid2haircut.render.types import StrandRender
 
 __all__ = ["Stage2Model", "fit_stage2"]
 
@@ -248,7 +246,9 @@ class Stage2Model(nn.Module):
         self.last_render, self.last_frames, self.last_deformed = out, frames, moved.detach()
         losses = image_losses(out, self.data, frames, cfg.depth_align, cfg.depth_head)
         if cfg.weights.hidden_direction > 0.0 and cfg.switches.use_visibility:
-            losses["hidden_direction"] = self._hidden_direction(drawn[:, self.layout.render_index], moved, frames, out)
+            hidden = ~gate_visibility(out.visibility, cfg.visibility_unit)
+            losses["hidden_direction"] = hidden_direction_term(drawn[:, self.layout.render_index], moved, hidden, out,
+                                                               self.data, frames, cfg.hidden_direction_from)
         if cfg.weights.outside > 0.0:
             losses["outside"] = outside_term(moved, self.data, frames, cfg.outside_tolerance)
         pen = penetration_loss(canon, self.data.head.sdf, self.cfg.penetration_margin)
@@ -291,34 +291,6 @@ class Stage2Model(nn.Module):
                 losses["canonical"] = motion_loss(offs[int(ref[0, 0])])
             losses["frame_code"] = self.deform.regularizers()["frame_code"]
         return losses
-
-    def _hidden_direction(self, drawn: Tensor, moved: Tensor, frames: Tensor, out: StrandRender) -> Tensor:
-        """:func:`hidden_direction_loss` of the segments the gate shuts in each frame.
-
-        drawn: (N,Pr,3) canonical strands as drawn; moved: (B,N,Pr,3) their per-frame copies (whose
-        gradient the gate masks); the term reaches ``drawn`` directly, the per-frame displacement
-        held fixed. out: the frames' render (its segment visibility says what the gate shuts).
-
-        With ``hidden_direction_from`` "render" (default) a hidden segment is compared with the
-        rendered direction of the hair drawn over it (detached): the fitted visible layer, so no
-        keyframe's image terms reach a segment that keyframe does not show, and the term is a
-        smoothness across layers. "target" compares it with the keyframe's target direction instead.
-        """
-        data = self.data
-        fr = frames.to(data.K.device)
-        hidden = ~gate_visibility(out.visibility, self.cfg.visibility_unit)
-        free = drawn[None] + (moved - drawn[None]).detach()
-        if self.cfg.hidden_direction_from == "render":
-            rendered = out.direction.detach()
-            norm = rendered.norm(dim=-1)
-            ok = out.mask.detach() & (norm > 1e-6)
-            target = rendered / norm.clamp_min(1e-6)[..., None]
-            weight = ok.to(rendered.dtype)
-        else:
-            target = data.direction[fr]
-            weight = data.confidence[fr] * (data.mask[fr] > 0.5)
-        hd = data.head_depth[fr] if data.head_depth is not None else None
-        return hidden_direction_loss(free, hidden, data.K[fr], data.cam_from_head[fr], target, weight, hd)
 
     def observed(self) -> Tensor:
         """(R,R) bool texels whose guide was seen (visible fraction >= observed_fraction) in some keyframe."""
