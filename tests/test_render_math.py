@@ -1,4 +1,5 @@
-"""The numba kernels' vectorisable math (render/numba_math.py): exp, log(1 - a), compress stores."""
+"""The numba kernels' vectorisable math (render/numba_math.py: exp, log(1 - a)) and explicit vector
+code (render/numba_simd.py: compress stores, one line of the window walk)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,8 @@ import pytest
 
 numba = pytest.importorskip("numba")
 
-from vid2haircut.render.numba_math import compress16, lane_exp, lane_log1m  # noqa: E402
+from vid2haircut.render.numba_math import lane_exp, lane_log1m
+from vid2haircut.render.numba_simd import compress16, line16  # noqa: E402
 
 
 @numba.njit(cache=True)
@@ -64,3 +66,58 @@ def test_compress16_appends_the_kept_lanes_in_order(dtype):
     assert n == mask.sum() and np.array_equal(dst[:n], src[mask != 0])
     assert np.all(dst[n:n + 1] == 0)  # the last call's lanes past the kept ones are zeros
     assert np.all(dst[n + 16:] == -99)  # and nothing lies further than 16 slots from the start
+
+
+@numba.njit(cache=True)
+def _lines(qa, qb, vlo, vhi, hl, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si, e_al, e_la, e_p):
+    n = 0
+    for j in range(rows.shape[0]):
+        n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half,
+                    cut, z, big, keep_any, np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+    return n
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("keep_any", [True, False])
+def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
+    """line16 against the walk's scalar formulas evaluated operation by operation in numpy (IEEE
+    rounding per operation, as the numba loop): the same kept lanes, bit for bit the same power and
+    head factor, the pixel indices; lines with every, no and some lanes kept, the head in front
+    (factor 0), level with (in between) and behind (1), and +inf head depth."""
+    rng = np.random.default_rng(1)
+    c = lambda x: np.asarray(x, dtype)  # noqa: E731
+    J = 300
+    qa, qb = c(rng.uniform(0, 6, (J, 16))), c(rng.uniform(-3, 3, (J, 16)))
+    vlo = rng.integers(-3, 10, (J, 16)).astype(np.int32)
+    vhi = (vlo + rng.integers(-1, 6, (J, 16))).astype(np.int32)
+    rows = rng.integers(0, 14, J).astype(np.int32)
+    vlo[0], vhi[0], qa[0], qb[0] = -5, 20, 0, 0  # every lane kept
+    vlo[1], vhi[1] = 20, -20  # none
+    hl = c(np.concatenate([rng.uniform(0.5, 0.7, 16 * J), np.full(16, np.inf)]))
+    z, big = c(0.6), c(1e4)  # (hl - z) * big: 0 (head in front) below 0.6, between 0 and 1 within 0.1 mm
+    hl[:16 * J:7] = z  # level: factor 0
+    hl[3:16 * J:11] = z + c(3e-5)
+    bases = np.arange(J, dtype=np.uint64) * 16
+    bases[0] = bases[5] = 16 * J  # the +inf row (line 0: every lane kept)
+    dvs, qv = c(rng.uniform(-3, 3, J)), c(0.7)
+    logop, half, cut = c(0.0), c(0.5), c(np.log(np.exp(-4.5)) - 1e-3)
+    prs, si = rng.integers(0, 200, J).astype(np.int32), 16
+    e_al, e_la, e_p = np.full(16 * J + 16, -9, dtype), np.full(16 * J + 16, -9, dtype), np.full(16 * J + 16, -9, np.int32)
+    n = _lines(qa, qb, vlo, vhi, hl, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si, e_al, e_la, e_p)
+    ref_p, ref_f, ref_pix = [], [], []
+    for j in range(J):
+        dv = dvs[j]
+        p = logop - half * (qa[j] + dv * (qb[j] + qv * dv))
+        x = (hl[int(bases[j]):int(bases[j]) + 16] - z) * big
+        x = np.where(c(0) > x, c(0), x)
+        f = np.where(c(1) < x, c(1), x)
+        kept = (rows[j] >= vlo[j]) & (rows[j] <= vhi[j]) & (p > cut) & (f > 0) & keep_any
+        ref_p.append(p[kept])
+        ref_f.append(f[kept])
+        ref_pix.append((prs[j] + np.arange(16) * si)[kept])
+        assert kept.all() == (j == 0 and keep_any) or j > 0
+    ref_p, ref_f, ref_pix = np.concatenate(ref_p), np.concatenate(ref_f), np.concatenate(ref_pix)
+    assert n == ref_p.size and (n > 200 if keep_any else n == 0)
+    assert np.array_equal(e_al[:n], ref_p) and np.array_equal(e_la[:n], ref_f) and np.array_equal(e_p[:n], ref_pix)
+    if keep_any:
+        assert 0 < np.count_nonzero((ref_f > 0) & (ref_f < 1)) and np.count_nonzero(ref_f == 1) > 50

@@ -102,7 +102,7 @@ class _Plan:
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
                 wint, wflt, frame, batch, width, height, TILE)
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
-        bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_math.compress16)
+        bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_simd)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
         self.has_head = head is not None
@@ -198,7 +198,7 @@ class _FusedComposite(torch.autograd.Function):
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                  plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                  TILE, plan.offsets, elems, e_range, out, maxw,
-                                 numba_math.HAS_COMPRESS and TILE == 16)  # compress16 stores 16 lanes
+                                 numba_math.HAS_COMPRESS and TILE == 16)  # numba_simd.line16: 16 lanes
             if plan.nbins > 1:
                 nk.reduce_visibility(plan.gstart, plan.inst_pos, maxw, plan.vis_weight, visible)
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype

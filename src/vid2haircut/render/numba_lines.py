@@ -27,7 +27,8 @@ import math
 import numpy as np
 from numba import njit
 
-from vid2haircut.render.numba_math import compress16, lane_cast
+from vid2haircut.render.numba_math import lane_cast
+from vid2haircut.render.numba_simd import line16
 from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
@@ -104,8 +105,9 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     (:func:`vid2haircut.render.numba_walk.tile_bounds`) and 16 more: with ``compress`` a line's
     store writes 16 slots (the kept lanes, then zeros that the next line overwrites).
     ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
-    ``compress``: append the kept lanes with :func:`vid2haircut.render.numba_math.compress16` (pass
-    ``numba_math.HAS_COMPRESS``) instead of a loop; the same elements either way.
+    ``compress``: evaluate each line with :func:`vid2haircut.render.numba_simd.line16` (explicit
+    16-lane vector code with AVX-512 compression; pass ``numba_math.HAS_COMPRESS``) instead of
+    the loop over the lanes; the same elements either way.
     """
     tw = x1 - x0 + 1
     cut = lane_cast(math.log(consts[1]) - 1e-3, zs[0])  # power > cut: inside the ellipse
@@ -134,6 +136,10 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
                     zr = zref2[base + ii]
                     zref2[base + ii] = zg if (rr >= vlo[ii]) & (rr <= vhi[ii]) & (zg < zr) else zr
             pr = r * sr
+            if compress:  # AVX-512: the line as explicit 16-lane vector code, the same elements as the loop
+                n += line16(lane[L_QA], lane[L_QB], vlo, vhi, hl, base, rr, dv, qv, logop, half, cut, z, big, keep_any,
+                            np.int32(pr), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+                continue
             ifirst, ilast = np.int32(L), np.int32(-1)
             for i in range(L):
                 ii = np.uint64(i)
@@ -146,18 +152,13 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
                 pix[ii] = np.int32(pr + i * si)
                 ifirst = min(ifirst, np.int32(i)) if kept else ifirst
                 ilast = max(ilast, np.int32(i)) if kept else ilast
-            if compress:  # AVX-512: one compress instruction per array
-                compress16(e_al, np.uint64(n), pw, km)
-                compress16(e_la, np.uint64(n), hf, km)
-                n += compress16(e_p, np.uint64(n), pix, km)
-            else:  # branch free over the lanes from the first to the last kept one
-                for i in range(ifirst, ilast + 1):
-                    ii = np.uint64(i)
-                    nu = np.uint64(n)
-                    e_p[nu] = pix[ii]
-                    e_al[nu] = pw[ii]
-                    e_la[nu] = hf[ii]
-                    n += km[ii]
+            for i in range(ifirst, ilast + 1):  # branch free over the lanes from the first to the last kept one
+                ii = np.uint64(i)
+                nu = np.uint64(n)
+                e_p[nu] = pix[ii]
+                e_al[nu] = pw[ii]
+                e_la[nu] = hf[ii]
+                n += km[ii]
         e_range[k, 1] = n
     return n - off
 

@@ -17,9 +17,7 @@ import warnings
 
 import numpy as np
 import llvmlite.binding as _llvm
-from llvmlite import ir as _ir
 from numba import njit, types
-from numba.core import cgutils
 from numba.core.errors import NumbaIRAssumptionWarning
 from numba.extending import intrinsic, overload
 
@@ -179,8 +177,9 @@ def _lane_cast(x, like):
 
 
 def _host_has_avx512() -> bool:
-    """True when the CPU numba compiles for has AVX-512F (vcompress: :func:`compress16` is one
-    instruction; elsewhere LLVM expands it lane by lane, and the callers use a loop instead)."""
+    """True when the CPU numba compiles for has AVX-512F (vcompress: the compaction of
+    :mod:`.numba_simd` is one instruction; elsewhere LLVM expands it lane by lane, and the callers
+    use a loop instead)."""
     try:
         return bool(_llvm.get_host_cpu_features().get("avx512f", False))
     except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable loop)
@@ -188,52 +187,5 @@ def _host_has_avx512() -> bool:
 
 
 HAS_COMPRESS = _host_has_avx512()
-"""Whether :func:`compress16` compiles to AVX-512 compress instructions on this machine; the
-backend passes it to the kernels as a run-time flag (tests set it both ways)."""
-
-
-@intrinsic
-def compress16(typingctx, dst, dst_off, src, mask):
-    """Append the 16 lanes src[0:16] whose mask[i] != 0, in lane order, at dst[dst_off]; return how
-    many (int64). dst / src: 1-D arrays of one dtype (src holds at least 16 values, dst at least
-    dst_off + 16); mask: 1-D int32 array of at least 16 values (numba only).
-
-    Writes all 16 slots dst[dst_off:dst_off + 16]: the kept lanes, then zeros. The lanes are
-    packed in a register (LLVM's ``experimental.vector.compress``: one AVX-512 ``vcompress`` into a
-    register where the CPU has it) and stored with one plain vector store. A compress straight to
-    memory (``masked.compressstore``) would spare the zeros, but AMD Zen 4 runs that form as a
-    microcoded sequence of ~100+ cycles (measured on this project's 2-core AMD EPYC: 30 ms more per
-    4k-strand forward than the loop), while the register form is fast on Intel and AMD alike.
-    """
-    sig = types.int64(dst, types.uint64, src, mask)
-
-    def codegen(context, builder, signature, args):
-        dst_v, off, src_v, m_v = args
-        elt = context.get_value_type(signature.args[0].dtype)
-        melt = context.get_value_type(signature.args[3].dtype)
-        d = context.make_array(signature.args[0])(context, builder, dst_v).data
-        s_ = context.make_array(signature.args[2])(context, builder, src_v).data
-        m = context.make_array(signature.args[3])(context, builder, m_v).data
-        if isinstance(elt, _ir.IntType):
-            kind, width = f"i{elt.width}", elt.width
-        else:
-            kind, width = ("f32", 32) if isinstance(elt, _ir.FloatType) else ("f64", 64)
-        lanes = 16 if width == 32 else 8  # one 512-bit register per part: 1 part of 32-bit, 2 of 64-bit
-        vt, mvt, i64 = _ir.VectorType(elt, lanes), _ir.VectorType(melt, lanes), _ir.IntType(64)
-        pack = cgutils.get_or_insert_function(
-            builder.module, _ir.FunctionType(vt, [vt, _ir.VectorType(_ir.IntType(1), lanes), vt]),
-            f"llvm.experimental.vector.compress.v{lanes}{kind}")
-        ctpop = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(i64, [i64]), "llvm.ctpop.i64")
-        pos = off
-        for part in range(16 // lanes):
-            first = _ir.Constant(i64, part * lanes)
-            val = builder.load(builder.bitcast(builder.gep(s_, [first]), vt.as_pointer()), align=4)
-            bits = builder.icmp_unsigned("!=", builder.load(builder.bitcast(builder.gep(m, [first]), mvt.as_pointer()),
-                                                            align=4), _ir.Constant(mvt, None))
-            packed = builder.call(pack, [val, bits, _ir.Constant(vt, None)])
-            builder.store(packed, builder.bitcast(builder.gep(d, [pos], inbounds=True), vt.as_pointer()), align=4)
-            kept = builder.call(ctpop, [builder.zext(builder.bitcast(bits, _ir.IntType(lanes)), i64)])
-            pos = builder.add(pos, kept)
-        return builder.sub(pos, off)
-
-    return sig, codegen
+"""Whether :mod:`.numba_simd`'s compaction compiles to AVX-512 compress instructions on this
+machine; the backend passes it to the kernels as a run-time flag (tests set it both ways)."""
