@@ -69,11 +69,13 @@ def test_compress16_appends_the_kept_lanes_in_order(dtype):
 
 
 @numba.njit(cache=True)
-def _lines(qa, qb, vlo, vhi, hl, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si, e_al, e_la, e_p):
+def _lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si, e_al,
+           e_la, e_p):
     n = 0
     for j in range(rows.shape[0]):
-        n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half,
-                    cut, z, big, keep_any, np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+        n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
+                    np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
+                    np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
     return n
 
 
@@ -81,8 +83,8 @@ def _lines(qa, qb, vlo, vhi, hl, bases, rows, dvs, qv, logop, half, cut, z, big,
 @pytest.mark.parametrize("keep_any", [True, False])
 def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
     """line16 against the walk's scalar formulas evaluated operation by operation in numpy (IEEE
-    rounding per operation, as the numba loop): the same kept lanes, bit for bit the same power and
-    head factor, the pixel indices; lines with every, no and some lanes kept, the head in front
+    rounding per operation, as the numba loop): the same z_ref update (none without it), the same
+    kept lanes, bit for bit the same power and head factor, the pixel indices; lines with every, no and some lanes kept, the head in front
     (factor 0), level with (in between) and behind (1), and +inf head depth."""
     rng = np.random.default_rng(1)
     c = lambda x: np.asarray(x, dtype)  # noqa: E731
@@ -103,9 +105,22 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
     logop, half, cut = c(0.0), c(0.5), c(np.log(np.exp(-4.5)) - 1e-3)
     prs, si = rng.integers(0, 200, J).astype(np.int32), 16
     e_al, e_la, e_p = np.full(16 * J + 16, -9, dtype), np.full(16 * J + 16, -9, dtype), np.full(16 * J + 16, -9, np.int32)
-    n = _lines(qa, qb, vlo, vhi, hl, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si, e_al, e_la, e_p)
+    zgs = c(rng.uniform(0, 1, J))
+    zref = c(np.full(hl.shape, np.inf))
+    zref[::3] = c(0.5)
+    zref0 = zref.copy()
+    n = _lines(qa, qb, vlo, vhi, hl, zref, True, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si,
+               e_al, e_la, e_p)
+    unchanged = zref0.copy()
+    assert _lines(qa, qb, vlo, vhi, hl, unchanged, False, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any,
+                  prs, si, e_al.copy(), e_la.copy(), e_p.copy()) == n
+    assert np.array_equal(unchanged, zref0)  # without z_ref: not touched
     ref_p, ref_f, ref_pix = [], [], []
+    ref_zref = zref0.copy()
     for j in range(J):
+        b = int(bases[j])
+        win = (rows[j] >= vlo[j]) & (rows[j] <= vhi[j])
+        ref_zref[b:b + 16] = np.where(win & (zgs[j] < ref_zref[b:b + 16]), zgs[j], ref_zref[b:b + 16])
         dv = dvs[j]
         p = logop - half * (qa[j] + dv * (qb[j] + qv * dv))
         x = (hl[int(bases[j]):int(bases[j]) + 16] - z) * big
@@ -117,6 +132,7 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
         ref_pix.append((prs[j] + np.arange(16) * si)[kept])
         assert kept.all() == (j == 0 and keep_any) or j > 0
     ref_p, ref_f, ref_pix = np.concatenate(ref_p), np.concatenate(ref_f), np.concatenate(ref_pix)
+    assert np.array_equal(zref, ref_zref) and not np.array_equal(zref, zref0)
     assert n == ref_p.size and (n > 200 if keep_any else n == 0)
     assert np.array_equal(e_al[:n], ref_p) and np.array_equal(e_la[:n], ref_f) and np.array_equal(e_p[:n], ref_pix)
     if keep_any:

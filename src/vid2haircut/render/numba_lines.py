@@ -130,16 +130,16 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
             rr = np.int32(r)
             dv = lane_cast(r, mvr) - mvr
             base = np.uint64((lay * L + r) * L)
+            pr = r * sr
+            if compress:  # AVX-512: the line as explicit 16-lane vector code, the same result as the loops
+                n += line16(lane[L_QA], lane[L_QB], vlo, vhi, hl, zref2, with_zref, zg, base, rr, dv, qv, logop, half,
+                            cut, z, big, keep_any, np.int32(pr), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+                continue
             if with_zref:
                 for i in range(L):
                     ii = np.uint64(i)
                     zr = zref2[base + ii]
                     zref2[base + ii] = zg if (rr >= vlo[ii]) & (rr <= vhi[ii]) & (zg < zr) else zr
-            pr = r * sr
-            if compress:  # AVX-512: the line as explicit 16-lane vector code, the same elements as the loop
-                n += line16(lane[L_QA], lane[L_QB], vlo, vhi, hl, base, rr, dv, qv, logop, half, cut, z, big, keep_any,
-                            np.int32(pr), np.int32(si), e_al, e_la, e_p, np.uint64(n))
-                continue
             ifirst, ilast = np.int32(L), np.int32(-1)
             for i in range(L):
                 ii = np.uint64(i)

@@ -101,25 +101,27 @@ def compress16(typingctx, dst, dst_off, src, mask):
 
 
 @intrinsic
-def line16(typingctx, qa, qb, vlo, vhi, hl, base, rr, dv, qv, logop, half, cut, z, big, keep_any, pr, si,
-           e_al, e_la, e_p, n):
+def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big, keep_any,
+           pr, si, e_al, e_la, e_p, n):
     """One line of the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`) in 16 lanes:
-    append its kept elements at e_*[n:] and return how many (int64).
+    update z_ref, append the line's kept elements at e_*[n:] and return how many (int64).
 
-    Lane i (u = tile u0 + i) of line ``rr`` (tile relative, int32): power
-    p = logop - half (qa[i] + dv (qb[i] + qv dv)), head factor f = min(max((hl[base + i] - z) big, 0), 1),
-    kept when vlo[i] <= rr <= vhi[i], p > cut, f > 0 and ``keep_any``; its element is (pixel
-    pr + i si (int32), p, f) into (e_p, e_al, e_la). qa / qb / hl / e_al / e_la and the float
-    scalars share one float dtype (float32 or float64); vlo / vhi / e_p are int32; base and n
-    uint64. Writes 16 slots of each output from n on (the kept lanes, then zeros).
+    Lane i (u = tile u0 + i) of line ``rr`` (tile relative, int32) is in the window when
+    vlo[i] <= rr <= vhi[i]; there, with ``with_zref``, zref[base + i] := zg if zg < zref[base + i].
+    Its power p = logop - half (qa[i] + dv (qb[i] + qv dv)), head factor
+    f = min(max((hl[base + i] - z) big, 0), 1); kept when in the window, p > cut, f > 0 and
+    ``keep_any``; its element is (pixel pr + i si (int32), p, f) into (e_p, e_al, e_la).
+    qa / qb / hl / zref / e_al / e_la and the float scalars share one float dtype (float32 or
+    float64); vlo / vhi / e_p are int32; base and n uint64. Writes 16 slots of each output from n
+    on (the kept lanes, then zeros).
     """
     ft = qa.dtype
-    sig = types.int64(qa, qb, vlo, vhi, hl, types.uint64, types.int32, ft, ft, ft, ft, ft, ft, ft, types.boolean,
-                      types.int32, types.int32, e_al, e_la, e_p, types.uint64)
+    sig = types.int64(qa, qb, vlo, vhi, hl, zref, types.boolean, ft, types.uint64, types.int32, ft, ft, ft, ft, ft, ft,
+                      ft, types.boolean, types.int32, types.int32, e_al, e_la, e_p, types.uint64)
 
     def codegen(context, builder, signature, args):
-        (qa_v, qb_v, lo_v, hi_v, hl_v, base_v, rr_v, dv_v, qv_v, logop_v, half_v, cut_v, z_v, big_v, keep_v, pr_v,
-         si_v, al_v, la_v, p_v, n_v) = args
+        (qa_v, qb_v, lo_v, hi_v, hl_v, zr_v, wz_v, zg_v, base_v, rr_v, dv_v, qv_v, logop_v, half_v, cut_v, z_v, big_v,
+         keep_v, pr_v, si_v, al_v, la_v, p_v, n_v) = args
         aty = signature.args
         qa_ = _load16(builder, _data(context, builder, aty[0], qa_v))
         qb_ = _load16(builder, _data(context, builder, aty[1], qb_v))
@@ -138,15 +140,22 @@ def line16(typingctx, qa, qb, vlo, vhi, hl, base, rr, dv, qv, logop, half, cut, 
         x = builder.select(builder.fcmp_ordered(">", zero, x), zero, x)
         f = builder.select(builder.fcmp_ordered("<", one, x), one, x)
         rrs = _splat(builder, rr_v)
-        kept = builder.and_(builder.icmp_signed(">=", rrs, lo_), builder.icmp_signed("<=", rrs, hi_))
-        kept = builder.and_(kept, builder.fcmp_ordered(">", p, _splat(builder, cut_v)))
+        inside = builder.and_(builder.icmp_signed(">=", rrs, lo_), builder.icmp_signed("<=", rrs, hi_))
+        with builder.if_then(wz_v):
+            zptr = builder.bitcast(builder.gep(_data(context, builder, aty[5], zr_v), [base_v], inbounds=True),
+                                   qa_.type.as_pointer())
+            zr = builder.load(zptr, align=4)
+            zgs = _splat(builder, zg_v)
+            builder.store(builder.select(builder.and_(inside, builder.fcmp_ordered("<", zgs, zr)), zgs, zr), zptr,
+                          align=4)
+        kept = builder.and_(inside, builder.fcmp_ordered(">", p, _splat(builder, cut_v)))
         kept = builder.and_(kept, builder.fcmp_ordered(">", f, zero))
         kept = builder.select(keep_v, kept, _ir.Constant(kept.type, None))
         iota = _ir.Constant(_ir.VectorType(_I32, LANES), list(range(LANES)))
         pix = builder.add(_splat(builder, pr_v), builder.mul(iota, _splat(builder, si_v)))
-        _compress_store(builder, p, kept, _data(context, builder, aty[17], al_v), n_v)
-        _compress_store(builder, f, kept, _data(context, builder, aty[18], la_v), n_v)
-        end = _compress_store(builder, pix, kept, _data(context, builder, aty[19], p_v), n_v)
+        _compress_store(builder, p, kept, _data(context, builder, aty[20], al_v), n_v)
+        _compress_store(builder, f, kept, _data(context, builder, aty[21], la_v), n_v)
+        end = _compress_store(builder, pix, kept, _data(context, builder, aty[22], p_v), n_v)
         return builder.sub(end, n_v)
 
     return sig, codegen
