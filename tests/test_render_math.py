@@ -137,3 +137,19 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
     assert np.array_equal(e_al[:n], ref_p) and np.array_equal(e_la[:n], ref_f) and np.array_equal(e_p[:n], ref_pix)
     if keep_any:
         assert 0 < np.count_nonzero((ref_f > 0) & (ref_f < 1)) and np.count_nonzero(ref_f == 1) > 50
+
+
+def test_window_start_is_the_float32_ceiling():
+    """numba_tiles.vstart (trunc + compare, no libm call) = ceil(float32(slope * u) + v0) as
+    footprint.py computes it: integers, halves, values just around integers, negatives, -0."""
+    from vid2haircut.render.numba_tiles import vstart
+
+    rng = np.random.default_rng(3)
+    slopes = np.concatenate([rng.uniform(-1, 1, 2000), [0.0, -0.0, 1.0, -1.0, 0.5, -0.5]]).astype(np.float32)
+    us = rng.integers(0, 600, slopes.size)
+    v0s = np.concatenate([rng.uniform(-700, 700, 1000), np.round(rng.uniform(-50, 50, 1006))]).astype(np.float32)
+    v0s[:200] = np.nextafter(np.round(v0s[:200]), np.float32(np.inf))  # just above and below integers
+    v0s[200:400] = np.nextafter(np.round(v0s[200:400]), np.float32(-np.inf))
+    for sl, u, v0 in zip(slopes, us, v0s):
+        t = np.float32(np.float32(sl * np.float32(u)) + v0)
+        assert vstart(sl, u, v0) == int(np.ceil(t)), (sl, u, v0)
