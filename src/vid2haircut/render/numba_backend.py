@@ -156,8 +156,8 @@ class _FusedProject(torch.autograd.Function):
         from vid2haircut.render import numba_project as npj
 
         pts, Kn, En = (t.numpy() for t in ctx.saved_tensors)
-        out = np.empty(pts.shape)
-        g = grad.detach().to(torch.float64).contiguous().numpy()
+        out = np.empty(pts.shape, pts.dtype)  # float64 sums, stored in the points' dtype
+        g = grad.detach().contiguous().numpy()
         with _LOCK:
             npj.project_backward(pts, Kn, En, *ctx.consts, g, out)
         return torch.from_numpy(out).to(grad.dtype), None, None, None, None, None
@@ -214,7 +214,7 @@ class _FusedComposite(torch.autograd.Function):
         B, H, W = plan.shape
         g = grad.detach().to(torch.float64).contiguous().numpy()
         acc = np.zeros((plan.sorted_g.shape[0], nk.N_ACC))
-        grads = np.empty((ctx.gpar.shape[0], 8))
+        grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
         with _LOCK:
             nk.composite_backward(ctx.gpar, plan.consts, plan.nbins, plan.tile_start, plan.sorted_g,
                                   plan.work_start, plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, acc)

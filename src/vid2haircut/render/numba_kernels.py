@@ -214,7 +214,8 @@ def reduce_visibility(gstart, inst_pos, maxw, vis_weight, visible):
 @njit(**_PAR)
 def reduce_gradients(gstart, inst_pos, gpar, acc, grads):
     """grads [G, 8]: d loss / d (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a), summing the
-    instance accumulators ``acc`` of each Gaussian in instance order (0 for undrawn Gaussians)."""
+    instance accumulators ``acc`` of each Gaussian in instance order (0 for undrawn Gaussians);
+    computed in float64, stored in the dtype of ``grads``."""
     for g in prange(gstart.shape[0] - 1):
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
         for j in range(gstart[g], gstart[g + 1]):

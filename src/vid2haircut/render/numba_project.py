@@ -111,8 +111,10 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
 
     Args:
         points, K, w2c, strand_width, dilation, near: as given to :func:`project_forward`.
-        grad: [B * N * (P - 1), 8] float64 gradient of the Gaussian table (columns as ``gpar``).
-        out: [B, N, P, 3] float64, filled with the gradient of the points.
+        grad: [B * N * (P - 1), 8] gradient of the Gaussian table (columns as ``gpar``; float32
+            or float64, read as float64).
+        out: [B, N, P, 3] filled with the gradient of the points: summed in float64 (each point's
+            two segment terms in segment order), stored in the dtype of ``out``.
     """
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     S = N * (P - 1)
@@ -124,17 +126,18 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
         b, n = bn // N, bn - (bn // N) * N
         k00, k01, k10, k11 = float(K[b, 0, 0]), float(K[b, 0, 1]), float(K[b, 1, 0]), float(K[b, 1, 1])
         R, t = Rs[b], ts[b]
-        for j in range(P):
-            out[b, n, j, 0] = 0.0
-            out[b, n, j, 1] = 0.0
-            out[b, n, j, 2] = 0.0
+        a0 = a1 = a2 = 0.0  # point j's sum so far (float64): the term of segment j - 1
         for j in range(P - 1):
             g = b * S + n * (P - 1) + j
-            gu, gv, gqxx, gqxy, gqyy = grad[g, G_MX], grad[g, G_MY], grad[g, G_QXX], grad[g, G_QXY], grad[g, G_QYY]
-            gz, gc, gs = grad[g, G_Z], grad[g, G_C], grad[g, G_S]
+            f64 = np.float64  # numba's float() keeps float32
+            gu, gv, gqxx = f64(grad[g, G_MX]), f64(grad[g, G_MY]), f64(grad[g, G_QXX])
+            gqxy, gqyy = f64(grad[g, G_QXY]), f64(grad[g, G_QYY])
+            gz, gc, gs = f64(grad[g, G_Z]), f64(grad[g, G_C]), f64(grad[g, G_S])
             if gu == 0.0 and gv == 0.0 and gqxx == 0.0 and gqxy == 0.0 and gqyy == 0.0 and gz == 0.0 \
-                    and gc == 0.0 and gs == 0.0:
-                continue  # undrawn (possibly non-finite) segment
+                    and gc == 0.0 and gs == 0.0:  # undrawn (possibly non-finite) segment
+                out[b, n, j, 0], out[b, n, j, 1], out[b, n, j, 2] = a0, a1, a2
+                a0 = a1 = a2 = 0.0
+                continue
             # forward again, in float64
             (mx, my, mz, dx, dy, dz, zc, iz, X, Y, ja, jb, sx, sy, sz, len2e, coef, sxx, sxy,
              syy) = _segment(points64, b, n, j, R, t, k00, k01, k10, k11, near, w2, dilation, 1e-20)
@@ -194,9 +197,8 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
             gs0 = R[0, 0] * g_dx + R[1, 0] * g_dy + R[2, 0] * g_dz + 2.0 * sx * g_len2
             gs1 = R[0, 1] * g_dx + R[1, 1] * g_dy + R[2, 1] * g_dz + 2.0 * sy * g_len2
             gs2 = R[0, 2] * g_dx + R[1, 2] * g_dy + R[2, 2] * g_dz + 2.0 * sz * g_len2
-            out[b, n, j, 0] += 0.5 * gmw0 - gs0
-            out[b, n, j, 1] += 0.5 * gmw1 - gs1
-            out[b, n, j, 2] += 0.5 * gmw2 - gs2
-            out[b, n, j + 1, 0] += 0.5 * gmw0 + gs0
-            out[b, n, j + 1, 1] += 0.5 * gmw1 + gs1
-            out[b, n, j + 1, 2] += 0.5 * gmw2 + gs2
+            out[b, n, j, 0] = a0 + (0.5 * gmw0 - gs0)
+            out[b, n, j, 1] = a1 + (0.5 * gmw1 - gs1)
+            out[b, n, j, 2] = a2 + (0.5 * gmw2 - gs2)
+            a0, a1, a2 = 0.0 + (0.5 * gmw0 + gs0), 0.0 + (0.5 * gmw1 + gs1), 0.0 + (0.5 * gmw2 + gs2)
+        out[b, n, P - 1, 0], out[b, n, P - 1, 1], out[b, n, P - 1, 2] = a0, a1, a2
