@@ -323,6 +323,7 @@ def main(argv: list[str] | None = None) -> int:
                         "below it)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
+    import vid2haircut  # noqa: F401  (before torch, as in the CLI: see the package docstring)
     import torch
 
     if args.threads:

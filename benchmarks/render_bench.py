@@ -21,6 +21,8 @@ import math
 import os
 import time
 
+import vid2haircut  # noqa: F401  (before torch: its OpenMP spin setting applies only then, as in the CLI)
+
 import numpy as np
 import torch
 
@@ -183,6 +185,7 @@ def main(argv=None) -> int:
     dev_name = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"CPU, {torch.get_num_threads()} threads"
     backend = resolve_backend(args.backend, torch.zeros(1, device=args.device))
     print(f"device: {dev_name}; torch {torch.__version__}; backend: {backend}; frames per call: {args.frames}; "
+          f"GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
           f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")
     print("|---|---|---|---|---|---|---|---|")

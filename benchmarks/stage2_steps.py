@@ -22,6 +22,8 @@ import tempfile
 import time
 from pathlib import Path
 
+import vid2haircut  # noqa: F401  (before torch, as in the CLI: see the package docstring)
+
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
