@@ -18,13 +18,13 @@ forward+backward 295 ms; a plain scatter_add_ of the same 7.6 M values takes 15 
 fwd+bwd is ~40x that ceiling (~13 gather/scatter and ~55 elementwise passes over the
 contributions, plus ~65 ms of footprint building). On an H100 (one chunk): fwd+bwd ~17-50 ms
 per frame, ~32 ms for 8 frames per call.
-Numba backend (``python benchmarks/render_bench.py --backend numba``, 2 threads, this project's
-2-core Intel CPU with AVX-512, torch 2.13; the earlier per-column walk and torch projection in
-brackets, same machine and run): forward 52-55 ms (78), forward+backward 84-88 ms (118), 7.0x
-a scatter_add_ of the same 7.6 M values (12 ms there; 10.4x before). Of a forward+backward,
-~32 ms are the forward compositing kernel (of it ~16 ms the window walk), ~21 ms the backward
-kernel, ~8 ms the numba projection and its backward, ~7 ms the windows and the screen-tile
-binning, ~4 ms the per-Gaussian gradient sums and the rest torch glue (channels, loss).
+Numba backend (``python benchmarks/render_bench.py --backend numba``, 2 threads, torch 2.13):
+on a 2-core AMD EPYC (Zen 4, AVX-512), forward 33-41 ms and forward+backward 57-70 ms, 11.7-14x a
+scatter_add_ of the same 7.6 M values (5 ms there; the code before the explicit vector line kernel
+of :mod:`.numba_simd`, the register compaction and the OpenMP spin setting: 99 / 133 ms); on a
+2-core Intel Xeon (AVX-512) the code before measured 52 / 84 ms, 7.0x its 12 ms scatter-add.
+Breakdown and history: README, Performance; benchmarks/RESULTS.md, "The renderer on an AMD EPYC
+(Zen 4)".
 """
 
 from __future__ import annotations

@@ -20,10 +20,13 @@ Compilation: on first use, once per machine, ~21 s for the first dtype and ~13 s
 (measured, 2 cores), then cached on disk (``cache=True``: ``__pycache__`` next to the modules,
 or numba's user cache directory); loading the cache costs ~0.5 s per process. numba's cache
 follows the source file of each compiled function, not the modules it inlines: after editing
-:mod:`.numba_math` or :mod:`.numba_lines` alone, delete the ``*.nbi`` / ``*.nbc`` files of
-``__pycache__`` (a package install or update replaces every file, so users are not affected).
+:mod:`.numba_math`, :mod:`.numba_simd` or :mod:`.numba_lines` alone, delete the ``*.nbi`` /
+``*.nbc`` files of ``__pycache__`` (a package install or update replaces every file, so users are
+not affected).
 Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``; the results are
-bitwise identical for any thread count. Memory: the forward pass keeps 16 bytes per window
+bitwise identical for any thread count. The kernels share the cores with torch's OpenMP workers,
+which spin for a while after each parallel torch op; importing vid2haircut before torch shortens
+that spin (``GOMP_SPINCOUNT``, see the package docstring). Memory: the forward pass keeps 16 bytes per window
 element for the backward pass in float32 (24 in float64; ~160 MB allocated for 4k strands at
 256 x 256, about a third of it touched).
 """
