@@ -69,8 +69,8 @@ def test_compress16_appends_the_kept_lanes_in_order(dtype):
 
 
 @numba.njit(cache=True)
-def _lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si, e_al,
-           e_la, e_p):
+def _lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any,
+           prs, si, e_al, e_la, e_p):
     n = 0
     for j in range(rows.shape[0]):
         n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
@@ -84,8 +84,9 @@ def _lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, log
 def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
     """line16 against the walk's scalar formulas evaluated operation by operation in numpy (IEEE
     rounding per operation, as the numba loop): the same z_ref update (none without it), the same
-    kept lanes, bit for bit the same power and head factor, the pixel indices; lines with every, no and some lanes kept, the head in front
-    (factor 0), level with (in between) and behind (1), and +inf head depth."""
+    kept lanes, bit for bit the same power and head factor, the pixel indices; lines with every,
+    no and some lanes kept, the head in front (factor 0), level with (in between) and behind (1),
+    and +inf head depth."""
     rng = np.random.default_rng(1)
     c = lambda x: np.asarray(x, dtype)  # noqa: E731
     J = 300
@@ -104,7 +105,8 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
     dvs, qv = c(rng.uniform(-3, 3, J)), c(0.7)
     logop, half, cut = c(0.0), c(0.5), c(np.log(np.exp(-4.5)) - 1e-3)
     prs, si = rng.integers(0, 200, J).astype(np.int32), 16
-    e_al, e_la, e_p = np.full(16 * J + 16, -9, dtype), np.full(16 * J + 16, -9, dtype), np.full(16 * J + 16, -9, np.int32)
+    slots = 16 * J + 16
+    e_al, e_la, e_p = np.full(slots, -9, dtype), np.full(slots, -9, dtype), np.full(slots, -9, np.int32)
     zgs = c(rng.uniform(0, 1, J))
     zref = c(np.full(hl.shape, np.inf))
     zref[::3] = c(0.5)
