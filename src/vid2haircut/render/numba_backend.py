@@ -216,7 +216,7 @@ class _FusedComposite(torch.autograd.Function):
         plan = ctx.plan
         B, H, W = plan.shape
         g = grad.detach().to(torch.float64).contiguous().numpy()
-        acc = np.zeros((plan.sorted_g.shape[0], nk.N_ACC))
+        acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))  # composite_backward writes every entry
         grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
         with _LOCK:
             nk.composite_backward(ctx.gpar, plan.consts, plan.nbins, plan.tile_start, plan.sorted_g,

@@ -143,7 +143,8 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
         grad: [B, H, W, C] upstream gradient of ``out``; the other arguments as given to (and
             filled by) :func:`composite_forward` (consts[3] > 0: the last channel is the second
             silhouette's).
-        acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``).
+        acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``; every entry is
+            written, the array need not be zeroed).
     """
     e_p, e_bin, e_dl, e_la, e_dl2, e_la2 = elems
     second = consts[C_RATIO] > 0.0
@@ -181,6 +182,8 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
                 H = gradient_table(Lb, nb, negM, Etab, Gt, gl[0])
             else:
                 negM, H = np.zeros((1, npx)), gl[0:1].copy()
+                for k in range(i0, i1):  # silhouette only: no depth or direction gradients
+                    acc[k, 5], acc[k, 6], acc[k, 7] = 0.0, 0.0, 0.0
             for k in range(i0, i1):  # C: d loss / d power and its moments per instance
                 g = sorted_g[k]
                 z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
