@@ -1,5 +1,5 @@
 """The numba kernels' vectorisable math (render/numba_math.py: exp, log(1 - a)) and explicit vector
-code (render/numba_simd.py: compress stores, one line of the window walk)."""
+code (render/numba_simd.py: one line of the window walk, its compaction included)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 numba = pytest.importorskip("numba")
 
 from vid2haircut.render.numba_math import lane_exp, lane_log1m
-from vid2haircut.render.numba_simd import compress16, line16  # noqa: E402
+from vid2haircut.render.numba_simd import line16  # noqa: E402
 
 
 @numba.njit(cache=True)
@@ -22,14 +22,6 @@ def _exp_all(x, out):
 def _log1m_all(a, out):
     for i in range(a.shape[0]):
         out[i] = lane_log1m(a[i])
-
-
-@numba.njit(cache=True)
-def _compress_all(src, mask, dst):
-    n = 0
-    for k in range(src.shape[0] // 16):
-        n += compress16(dst, np.uint64(n), src[16 * k:16 * k + 16], mask[16 * k:16 * k + 16])
-    return n
 
 
 @pytest.mark.parametrize("dtype,tol", [(np.float32, 1.2e-7), (np.float64, 3e-16)])
@@ -52,20 +44,6 @@ def test_log1m_relative_error(dtype, tol):
     nz = ref != 0
     assert out.dtype == dtype and np.all(out[~nz] == 0)
     assert np.max(np.abs(out[nz] - ref[nz]) / np.abs(ref[nz])) < tol
-
-
-@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32])
-def test_compress16_appends_the_kept_lanes_in_order(dtype):
-    rng = np.random.default_rng(0)
-    src = rng.uniform(-5, 5, 16 * 200).astype(dtype)
-    mask = (rng.random(src.shape[0]) < 0.3).astype(np.int32)
-    mask[:16] = 1  # a full line and an empty one
-    mask[16:32] = 0
-    dst = np.full(src.shape[0] + 16, -99, dtype)
-    n = _compress_all(src, mask, dst)
-    assert n == mask.sum() and np.array_equal(dst[:n], src[mask != 0])
-    assert np.all(dst[n:n + 1] == 0)  # the last call's lanes past the kept ones are zeros
-    assert np.all(dst[n + 16:] == -99)  # and nothing lies further than 16 slots from the start
 
 
 @numba.njit(cache=True)
@@ -137,6 +115,10 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
     assert np.array_equal(zref, ref_zref) and not np.array_equal(zref, zref0)
     assert n == ref_p.size and (n > 200 if keep_any else n == 0)
     assert np.array_equal(e_al[:n], ref_p) and np.array_equal(e_la[:n], ref_f) and np.array_equal(e_p[:n], ref_pix)
+    last = n - int(np.count_nonzero(kept))  # where the last line's 16 slots begin
+    for out in (e_al, e_la, e_p):  # they hold its kept lanes, then zeros (float64: up to there); nothing beyond
+        assert np.all((out[n:last + 16] == 0) | (out[n:last + 16] == -9)) and np.all(out[last + 16:] == -9)
+        assert out[n] == 0
     if keep_any:
         assert 0 < np.count_nonzero((ref_f > 0) & (ref_f < 1)) and np.count_nonzero(ref_f == 1) > 50
 

@@ -108,7 +108,7 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     :func:`vid2haircut.render.numba_walk.alpha_and_l` (the few candidates that fail it stay, with
     alpha = l = 0: they add nothing). The element slots must hold the tile's window elements
     (:func:`vid2haircut.render.numba_walk.tile_bounds`) and 16 more: with ``compress`` a line's
-    store writes 16 slots (the kept lanes, then zeros that the next line overwrites).
+    stores write up to 16 slots (the kept lanes, then zeros that the next line overwrites).
     ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
     ``compress``: evaluate each line with :func:`vid2haircut.render.numba_simd.line16` (explicit
     16-lane vector code with AVX-512 compression; pass ``numba_math.HAS_COMPRESS``) instead of

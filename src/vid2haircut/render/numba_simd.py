@@ -10,9 +10,9 @@ code (no fast-math flags: no fused multiply-adds, the same comparisons and selec
 ``min`` / ``max``), so the elements it appends are bit for bit those of the loop
 (tests/test_render_math.py, tests/test_render_backends.py).
 
-Both intrinsics pack the kept lanes with LLVM's ``experimental.vector.compress`` (one AVX-512
-``vcompress`` into a register where the CPU has it) and store all 16 slots with one plain vector
-store: the kept lanes, then zeros. A compress straight to memory (``masked.compressstore``)
+:func:`line16` packs the kept lanes with LLVM's ``experimental.vector.compress`` (one AVX-512
+``vcompress`` into a register where the CPU has it) and stores them with one plain vector store
+of 16 slots (two of 8 for float64): the kept lanes, then zeros. A compress straight to memory (``masked.compressstore``)
 would spare the zeros, but AMD Zen 4 runs that form as a microcoded sequence of ~100+ cycles
 (measured on this project's 2-core AMD EPYC: 30 ms more per 4k-strand forward than a scalar
 loop), while the register form is fast on Intel and AMD alike. Without AVX-512 LLVM expands the
@@ -47,8 +47,9 @@ def _splat(builder, value, n: int = LANES):
 
 def _compress_store(builder, vec, bits, ptr, off):
     """Store the lanes of ``vec`` (<16 x T>) whose ``bits`` (<16 x i1>) are set, in lane order, at
-    ptr[off]; writes 16 slots (the kept lanes, then zeros). Returns off + the kept count (i64).
-    64-bit elements go as two halves of 8 (one 512-bit register each)."""
+    ptr[off]; writes 16 slots from off on (the kept lanes, then zeros; 64-bit elements go as two
+    halves of 8, one 512-bit register each, so their zeros reach off + (kept of the first half) + 8
+    only). Returns off + the kept count (i64)."""
     elt = vec.type.element
     kind, width = _kind(elt)
     lanes = LANES if width <= 32 else LANES // 2
@@ -82,25 +83,6 @@ def _load16(builder, ptr, off=None):
 
 
 @intrinsic
-def compress16(typingctx, dst, dst_off, src, mask):
-    """Append the 16 lanes src[0:16] whose mask[i] != 0, in lane order, at dst[dst_off]; return how
-    many (int64). dst / src: 1-D arrays of one dtype (src holds at least 16 values, dst at least
-    dst_off + 16); mask: 1-D int32 array of at least 16 values (numba only). Writes all 16 slots
-    dst[dst_off:dst_off + 16]: the kept lanes, then zeros."""
-    sig = types.int64(dst, types.uint64, src, mask)
-
-    def codegen(context, builder, signature, args):
-        dst_v, off, src_v, m_v = args
-        d = _data(context, builder, signature.args[0], dst_v)
-        val = _load16(builder, _data(context, builder, signature.args[2], src_v))
-        m = _load16(builder, _data(context, builder, signature.args[3], m_v))
-        bits = builder.icmp_unsigned("!=", m, _ir.Constant(m.type, None))
-        return builder.sub(_compress_store(builder, val, bits, d, off), off)
-
-    return sig, codegen
-
-
-@intrinsic
 def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big, keep_any,
            pr, si, e_al, e_la, e_p, n):
     """One line of the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`) in 16 lanes:
@@ -112,8 +94,8 @@ def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, q
     f = min(max((hl[base + i] - z) big, 0), 1); kept when in the window, p > cut, f > 0 and
     ``keep_any``; its element is (pixel pr + i si (int32), p, f) into (e_p, e_al, e_la).
     qa / qb / hl / zref / e_al / e_la and the float scalars share one float dtype (float32 or
-    float64); vlo / vhi / e_p are int32; base and n uint64. Writes 16 slots of each output from n
-    on (the kept lanes, then zeros).
+    float64); vlo / vhi / e_p are int32; base and n uint64. Writes at most 16 slots of each output
+    from n on (the kept lanes, then zeros).
     """
     ft = qa.dtype
     sig = types.int64(qa, qb, vlo, vhi, hl, zref, types.boolean, ft, types.uint64, types.int32, ft, ft, ft, ft, ft, ft,
