@@ -137,3 +137,44 @@ def test_window_start_is_the_float32_ceiling():
     for sl, u, v0 in zip(slopes, us, v0s):
         t = np.float32(np.float32(sl * np.float32(u)) + v0)
         assert vstart(sl, u, v0) == int(np.ceil(t)), (sl, u, v0)
+
+
+def test_line16_lane_by_lane_fallback(tmp_path):
+    """Without LLVM's vector compress (LLVM < 19) line16 compiles to a lane-by-lane store sequence
+    that appends the same kept elements (run in a fresh process: the choice is made when the kernel
+    compiles)."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np, numba
+from vid2haircut.render import numba_simd
+numba_simd.HAS_VECTOR_COMPRESS = False
+
+@numba.njit
+def one(qa, qb, lo, hi, hl, zref, e_al, e_la, e_p):
+    return line16(qa, qb, lo, hi, hl, zref, True, np.float32(0.2), np.uint64(0), np.int32(2), np.float32(0.5),
+                  np.float32(1.0), np.float32(0.0), np.float32(0.5), np.float32(-4.5), np.float32(0.6),
+                  np.float32(1e4), True, np.int32(3), np.int32(1), e_al, e_la, e_p, np.uint64(5))
+
+line16 = numba_simd.line16
+f32 = np.float32
+qa, qb = np.linspace(0, 9, 16).astype(f32), np.zeros(16, f32)
+lo, hi = np.zeros(16, np.int32), np.full(16, 5, np.int32)
+lo[3] = 4  # lane 3 outside the window
+hl = np.full(16, np.inf, f32)
+hl[7] = 0.5  # head in front of lane 7
+zref = np.full(16, np.inf, f32)
+e_al, e_la, e_p = np.full(40, -9, f32), np.full(40, -9, f32), np.full(40, -9, np.int32)
+n = one(qa, qb, lo, hi, hl, zref, e_al, e_la, e_p)
+p = f32(0.0) - f32(0.5) * (qa + f32(0.5) * (qb + f32(1.0) * f32(0.5)))
+kept = (p > f32(-4.5)) & (np.arange(16) != 3) & (np.arange(16) != 7)
+assert n == kept.sum() and np.array_equal(e_al[5:5 + n], p[kept]), (n, kept.sum())
+assert np.array_equal(e_p[5:5 + n], (3 + np.arange(16))[kept]) and np.all(e_la[5:5 + n] == 1)
+assert np.all(zref[np.arange(16) != 3] == f32(0.2)) and zref[3] == np.inf
+print("ok", n)
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
+    assert out.returncode == 0 and out.stdout.startswith("ok"), out.stderr[-2000:]

@@ -186,6 +186,6 @@ def _host_has_avx512() -> bool:
         return False
 
 
-HAS_COMPRESS = _host_has_avx512()
+HAS_COMPRESS = _host_has_avx512() and tuple(_llvm.llvm_version_info) >= (19,)  # see numba_simd
 """Whether :mod:`.numba_simd`'s compaction compiles to AVX-512 compress instructions on this
 machine; the backend passes it to the kernels as a run-time flag (tests set it both ways)."""

@@ -21,6 +21,7 @@ compress lane by lane, so the callers use a loop there (``numba_math.HAS_COMPRES
 
 from __future__ import annotations
 
+import llvmlite.binding as _llvm
 from llvmlite import ir as _ir
 from numba import types
 from numba.core import cgutils
@@ -29,6 +30,9 @@ from numba.extending import intrinsic
 LANES = 16
 _I64 = _ir.IntType(64)
 _I32 = _ir.IntType(32)
+HAS_VECTOR_COMPRESS = tuple(_llvm.llvm_version_info) >= (19,)
+"""Whether numba's LLVM has ``experimental.vector.compress`` (LLVM 19 on); older ones get a lane by
+lane store sequence instead, which the backend does not use (``numba_math.HAS_COMPRESS``)."""
 
 
 def _kind(elt) -> tuple[str, int]:
@@ -50,6 +54,13 @@ def _compress_store(builder, vec, bits, ptr, off):
     ptr[off]; writes 16 slots from off on (the kept lanes, then zeros; 64-bit elements go as two
     halves of 8, one 512-bit register each, so their zeros reach off + (kept of the first half) + 8
     only). Returns off + the kept count (i64)."""
+    if not HAS_VECTOR_COMPRESS:  # each lane stored at the cursor, which only the kept lanes advance
+        pos = off
+        for i in range(LANES):
+            lane = _ir.Constant(_I32, i)
+            builder.store(builder.extract_element(vec, lane), builder.gep(ptr, [pos], inbounds=True), align=4)
+            pos = builder.add(pos, builder.zext(builder.extract_element(bits, lane), _I64))
+        return pos
     elt = vec.type.element
     kind, width = _kind(elt)
     lanes = LANES if width <= 32 else LANES // 2
