@@ -17,21 +17,18 @@ import vid2haircut  # noqa: F401  (before torch, as in the CLI: see the package 
 import argparse
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the work folder's layout)
+from stage2_steps import run_short  # noqa: E402  (a short Stage 2 run from a quality work folder)
 
 
 def record_calls(work: Path, sequence: str, steps: int) -> list[dict]:
     """The first render_strands call of each kind in ``steps`` Stage 2 steps (inputs cloned)."""
-    import vid2haircut.fit.scene as scene
-    import vid2haircut.fit.visibility as visibility
-    from vid2haircut.fit.pipeline import run_stage2
+    import vid2haircut.fit.scene as scene  # every Stage 2 render goes through scene.render_frames
     from vid2haircut.render import api
 
     calls: dict[tuple, dict] = {}
@@ -46,12 +43,11 @@ def record_calls(work: Path, sequence: str, steps: int) -> list[dict]:
                               grad=points.requires_grad)
         return api.render_strands(points, K, E, width, height, strand_width, head_depth, **kw)
 
-    scene.render_strands = visibility.render_strands = recording
-    seq = quality.seq_files(work, sequence)
-    with tempfile.TemporaryDirectory() as tmp:
-        run_stage2(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"],
-                   work / "runs" / sequence / "stage1", Path(tmp) / "stage2",
-                   settings={"iterations": steps, "canonical_steps": steps // 2}, progress=False)
+    scene.render_strands = recording
+    try:
+        run_short(work, sequence, steps // 2, steps - steps // 2, {})
+    finally:
+        scene.render_strands = api.render_strands
     return list(calls.values())
 
 

@@ -30,9 +30,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import quality  # noqa: E402  (the work folder's layout)
 
 
-def step_times(work: Path, sequence: str, canonical: int, dense: int, settings: dict) -> tuple[list, list]:
-    """Wall seconds of every step of a ``canonical`` + ``dense`` step Stage 2 run -> (guide steps, dense steps)."""
-    from vid2haircut.fit import trainer
+def run_short(work: Path, sequence: str, canonical: int, dense: int, settings: dict) -> None:
+    """A ``canonical`` + ``dense`` step Stage 2 run from the work folder's cached Stage 1 of
+    ``sequence`` (default configuration with ``settings`` on top), into a temporary folder."""
     from vid2haircut.fit.pipeline import run_stage2
 
     seq = quality.seq_files(work, sequence)
@@ -40,6 +40,20 @@ def step_times(work: Path, sequence: str, canonical: int, dense: int, settings: 
     if not (stage1 / "hairmap.npz").is_file():
         raise SystemExit(f"{stage1 / 'hairmap.npz'}: no Stage 1 here; run benchmarks/quality.py "
                          "--variants stage1 first")
+    over = {**settings, "iterations": canonical + dense, "canonical_steps": canonical,
+            "ramp_steps": max(1, dense // 4), "checkpoint_every": 0}
+    out = Path(tempfile.mkdtemp(prefix="stage2_short_"))
+    try:
+        run_stage2(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"], stage1, out,
+                   settings=over, progress=False, resume=False)
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
+
+
+def step_times(work: Path, sequence: str, canonical: int, dense: int, settings: dict) -> tuple[list, list]:
+    """Wall seconds of every step of a ``canonical`` + ``dense`` step Stage 2 run -> (guide steps, dense steps)."""
+    from vid2haircut.fit import trainer
+
     times: list[float] = []
     original = trainer.Trainer.step
 
@@ -49,16 +63,11 @@ def step_times(work: Path, sequence: str, canonical: int, dense: int, settings: 
         times.append(time.perf_counter() - t0)
         return out
 
-    over = {**settings, "iterations": canonical + dense, "canonical_steps": canonical,
-            "ramp_steps": max(1, dense // 4), "checkpoint_every": 0}
     trainer.Trainer.step = timed
-    out = Path(tempfile.mkdtemp(prefix="stage2_steps_"))
     try:
-        run_stage2(seq["root"], seq["subject"], seq["keyframes"], seq["head"], seq["targets"], stage1, out,
-                   settings=over, progress=False, resume=False)
+        run_short(work, sequence, canonical, dense, settings)
     finally:
         trainer.Trainer.step = original
-        shutil.rmtree(out, ignore_errors=True)
     return times[:canonical], times[canonical:]
 
 

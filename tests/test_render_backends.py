@@ -129,11 +129,11 @@ def test_numba_backend_is_deterministic_for_any_thread_count():
 def test_walk_compaction_by_loop_equals_compress(dtype, monkeypatch):
     """The window walk's two ways of appending the kept lanes (AVX-512 compress, or the loop used
     on other CPUs) give identical renders and gradients."""
-    from vid2haircut.render import numba_math
+    from vid2haircut.render import numba_simd
 
     runs = []
     for compress in (False, True):
-        monkeypatch.setattr(numba_math, "HAS_COMPRESS", compress)
+        monkeypatch.setattr(numba_simd, "HAS_COMPRESS", compress)
         runs.append(_render_and_grad("numba", dtype))
     (a, ga), (b, gb) = runs
     for x, y in zip(a[:7], b[:7]):

@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from vid2haircut.render import numba_math
+from vid2haircut.render import numba_simd
 from vid2haircut.render.footprint import gaussian_windows
 from vid2haircut.render.gaussians import conics
 from vid2haircut.render.kernels import KernelConsts
@@ -201,7 +201,7 @@ class _FusedComposite(torch.autograd.Function):
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                  plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                  TILE, plan.offsets, elems, e_range, out, maxw,
-                                 numba_math.HAS_COMPRESS and TILE == 16)  # numba_simd.line16: 16 lanes
+                                 numba_simd.HAS_COMPRESS and TILE == 16)  # numba_simd.line16: 16 lanes
             if plan.nbins > 1:
                 nk.reduce_visibility(plan.gstart, plan.inst_pos, maxw, plan.vis_weight, visible)
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype

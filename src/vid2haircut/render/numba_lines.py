@@ -111,7 +111,7 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     stores write up to 16 slots (the kept lanes, then zeros that the next line overwrites).
     ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
     ``compress``: evaluate each line with :func:`vid2haircut.render.numba_simd.line16` (explicit
-    16-lane vector code with AVX-512 compression; pass ``numba_math.HAS_COMPRESS``) instead of
+    16-lane vector code with AVX-512 compression; pass ``numba_simd.HAS_COMPRESS``) instead of
     the loop over the lanes; the same elements either way.
     """
     tw = x1 - x0 + 1

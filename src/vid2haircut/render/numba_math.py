@@ -16,7 +16,6 @@ import math
 import warnings
 
 import numpy as np
-import llvmlite.binding as _llvm
 from numba import njit, types
 from numba.core.errors import NumbaIRAssumptionWarning
 from numba.extending import intrinsic, overload
@@ -173,19 +172,3 @@ def _lane_cast(x, like):
     if like == types.float32:
         return lambda x, like: np.float32(x)
     return lambda x, like: np.float64(x)
-
-
-
-def _host_has_avx512() -> bool:
-    """True when the CPU numba compiles for has AVX-512F (vcompress: the compaction of
-    :mod:`.numba_simd` is one instruction; elsewhere LLVM expands it lane by lane, and the callers
-    use a loop instead)."""
-    try:
-        return bool(_llvm.get_host_cpu_features().get("avx512f", False))
-    except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable loop)
-        return False
-
-
-HAS_COMPRESS = _host_has_avx512() and tuple(_llvm.llvm_version_info) >= (19,)  # see numba_simd
-"""Whether :mod:`.numba_simd`'s compaction compiles to AVX-512 compress instructions on this
-machine; the backend passes it to the kernels as a run-time flag (tests set it both ways)."""

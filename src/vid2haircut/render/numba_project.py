@@ -127,9 +127,9 @@ def project_backward(points, K, w2c, strand_width, dilation, near, grad, out):
         k00, k01, k10, k11 = float(K[b, 0, 0]), float(K[b, 0, 1]), float(K[b, 1, 0]), float(K[b, 1, 1])
         R, t = Rs[b], ts[b]
         a0 = a1 = a2 = 0.0  # point j's sum so far (float64): the term of segment j - 1
+        f64 = np.float64  # reads the gradient in float64 (numba's float() keeps float32)
         for j in range(P - 1):
             g = b * S + n * (P - 1) + j
-            f64 = np.float64  # numba's float() keeps float32
             gu, gv, gqxx = f64(grad[g, G_MX]), f64(grad[g, G_MY]), f64(grad[g, G_QXX])
             gqxy, gqyy = f64(grad[g, G_QXY]), f64(grad[g, G_QYY])
             gz, gc, gs = f64(grad[g, G_Z]), f64(grad[g, G_C]), f64(grad[g, G_S])

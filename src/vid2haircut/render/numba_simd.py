@@ -16,7 +16,7 @@ of 16 slots (two of 8 for float64): the kept lanes, then zeros. A compress strai
 would spare the zeros, but AMD Zen 4 runs that form as a microcoded sequence of ~100+ cycles
 (measured on this project's 2-core AMD EPYC: 30 ms more per 4k-strand forward than a scalar
 loop), while the register form is fast on Intel and AMD alike. Without AVX-512 LLVM expands the
-compress lane by lane, so the callers use a loop there (``numba_math.HAS_COMPRESS``).
+compress lane by lane, so the callers use a loop there (:data:`HAS_COMPRESS`).
 """
 
 from __future__ import annotations
@@ -32,7 +32,21 @@ _I64 = _ir.IntType(64)
 _I32 = _ir.IntType(32)
 HAS_VECTOR_COMPRESS = tuple(_llvm.llvm_version_info) >= (19,)
 """Whether numba's LLVM has ``experimental.vector.compress`` (LLVM 19 on); older ones get a lane by
-lane store sequence instead, which the backend does not use (``numba_math.HAS_COMPRESS``)."""
+lane store sequence instead, which the backend does not use (:data:`HAS_COMPRESS`)."""
+
+
+def _host_has_avx512() -> bool:
+    """True when the CPU numba compiles for has AVX-512F (vcompress: the compaction is one
+    instruction; elsewhere LLVM expands it lane by lane, and the callers use a loop instead)."""
+    try:
+        return bool(_llvm.get_host_cpu_features().get("avx512f", False))
+    except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable loop)
+        return False
+
+
+HAS_COMPRESS = HAS_VECTOR_COMPRESS and _host_has_avx512()
+"""Whether :func:`line16`'s compaction compiles to AVX-512 compress instructions on this machine;
+the backend passes it to the kernels as a run-time flag (tests set it both ways)."""
 
 
 def _kind(elt) -> tuple[str, int]:
@@ -55,6 +69,7 @@ def _compress_store(builder, vec, bits, ptr, off):
     halves of 8, one 512-bit register each, so their zeros reach off + (kept of the first half) + 8
     only). Returns off + the kept count (i64)."""
     if not HAS_VECTOR_COMPRESS:  # each lane stored at the cursor, which only the kept lanes advance
+        # (the slots past the kept lanes then hold lane values, not zeros)
         pos = off
         for i in range(LANES):
             lane = _ir.Constant(_I32, i)
