@@ -120,15 +120,16 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
                 fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
 
 
-def windows_and_tiles(means, covs, valid, frame, height, width, power_min):
+def windows_and_tiles(means, covs, valid, z, head, frame, height, width, power_min):
     """The numba backend's setup: pixel windows, then instances per screen tile."""
-    from vid2haircut.render.numba_tiles import bin_windows
+    from vid2haircut.render.numba_tiles import bin_windows, tile_head_max
     from vid2haircut.render.numba_tiles import gaussian_windows as numba_windows
 
     G = means.shape[0]
     wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
     numba_windows(means.numpy(), covs.numpy(), valid.numpy(), height, width, power_min, 4, 8, wint, wflt)
-    return bin_windows(wint, wflt, frame.numpy(), 1, width, height, TILE)
+    hmax = tile_head_max(head, True, 1, width, height, TILE)
+    return bin_windows(wint, wflt, frame.numpy(), 1, width, height, TILE, z, hmax)
 
 
 def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str = "auto") -> None:
@@ -144,8 +145,9 @@ def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str 
         proj = (pts, K, E, DEFAULT_STRAND_WIDTH, DEFAULT_DILATION, 1e-2)
         t_g = best_ms(lambda: project_fused(*proj), device, repeat)
         table, covs, valid = project_fused(*proj)
-        t_fp = best_ms(lambda: windows_and_tiles(table[:, :2], covs, valid, frame, size, size, power_min), device,
-                       repeat)
+        z, head = table[:, 5].contiguous().numpy(), hd.numpy()
+        t_fp = best_ms(lambda: windows_and_tiles(table[:, :2], covs, valid, z, head, frame, size, size, power_min),
+                       device, repeat)
     else:
         t_g = best_ms(lambda: segment_gaussians(pts, K, E), device, repeat)
         g = segment_gaussians(pts, K, E)

@@ -268,6 +268,8 @@ def test_bad_input_raises_clear_errors():
         render_strands(torch.zeros(1, 2, 3, 3, dtype=DT), K, E, 32, 32, head_depth=torch.zeros(1, 16, 16))
     with pytest.raises(ValueError, match="image size"):
         render_strands(torch.zeros(1, 2, 3, 3, dtype=DT), K, E, 0, 32)
+    with pytest.raises(ValueError, match="vis_weight"):
+        render_strands(torch.zeros(1, 2, 3, 3, dtype=DT), K, E, 32, 32, vis_weight=0.0)
 
 
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")

@@ -206,3 +206,38 @@ def test_numba_backend_from_two_python_threads():
         results = list(pool.map(lambda _: _render_and_grad("numba", torch.float64), range(4)))
     for out, grad in results:
         assert torch.equal(out.silhouette, ref[0].silhouette) and torch.equal(grad, ref[1])
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_hidden_tile_instances_are_culled_without_changing_the_render(dtype, monkeypatch):
+    """(Gaussian, tile) pairs that the head hides at every pixel of the tile are not listed; the
+    renders and gradients are bit for bit those listing them, and NaN depths are never culled."""
+    from vid2haircut.render import numba_tiles
+
+    counts, runs = [], []
+    real, real_hmax = numba_tiles.bin_windows, numba_tiles.tile_head_max
+
+    def counting(*args):
+        res = real(*args)
+        counts.append(res[1].shape[0])
+        return res
+
+    monkeypatch.setattr(numba_tiles, "bin_windows", counting)
+    runs.append(_render_and_grad("numba", dtype))
+    monkeypatch.setattr(numba_tiles, "tile_head_max", lambda *a: np.full_like(real_hmax(*a), np.inf))  # no culling
+    runs.append(_render_and_grad("numba", dtype))
+    (a, ga), (b, gb) = runs
+    assert counts[0] < counts[1]  # the head plane hides some whole tiles of some windows
+    for x, y in zip(a[:7], b[:7]):
+        assert torch.equal(x, y)
+    assert torch.equal(ga, gb)
+    # the rule itself: an instance is dropped where z >= the tile's largest head depth, NaN kept
+    wint = np.array([[1, 0, 8, 4]] * 3, np.int64)  # horizontal windows over x 0..7, rows 0..3
+    wflt = np.zeros((3, 2), np.float32)
+    hmax = np.array([1.0, np.inf], dtype=np.float64)  # two tiles of 8 x 8 in a 16 x 8 image
+    wint[2, 1] = 8  # the third window lies in the second tile
+    z = np.array([1.0, np.nan, 5.0])
+    gstart, inst_pos, tile_start, sorted_g = real(wint, wflt, np.zeros(3, np.int64), 1, 16, 8, 8, z, hmax)
+    assert list(tile_start) == [0, 1, 2] and list(sorted_g) == [1, 2] and list(gstart) == [0, 0, 1, 2]
+

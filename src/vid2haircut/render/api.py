@@ -121,6 +121,8 @@ def render_strands(
                          f"alpha_min={alpha_min}, opacity={opacity}, alpha_max={alpha_max}")
     if depth_bin <= 0 or bins < 1:
         raise ValueError(f"need depth_bin > 0 and bins >= 1, got depth_bin={depth_bin}, bins={bins}")
+    if not vis_weight > 0.0:  # a weight of 0 would call every segment whose window touches the image visible
+        raise ValueError(f"vis_weight must be > 0, got {vis_weight}")
     if silhouette_opacity is not None and not alpha_min < silhouette_opacity <= 1.0:
         raise ValueError(f"silhouette_opacity must be in (alpha_min, 1] = ({alpha_min}, 1], got {silhouette_opacity}")
     check_points(points)

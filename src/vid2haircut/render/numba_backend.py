@@ -93,23 +93,24 @@ def resolve_backend(backend: str, points: Tensor) -> str:
 class _Plan:
     """Everything the kernels need besides the differentiable Gaussian values (numpy arrays)."""
 
-    def __init__(self, wint, wflt, frame, head, consts: KernelConsts, batch: int, height: int, width: int, dtype,
+    def __init__(self, wint, wflt, frame, z, head, consts: KernelConsts, batch: int, height: int, width: int, dtype,
                  ratio: float = 0.0):
         import numba
 
         from vid2haircut.render import numba_tiles, numba_walk
 
         self.wint, self.wflt = wint, wflt
+        self.has_head = head is not None
+        self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         with _LOCK:
             _numba_threads()
+            hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
-                wint, wflt, frame, batch, width, height, TILE)
+                wint, wflt, frame, batch, width, height, TILE, z, hmax)
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
         bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_simd)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
-        self.has_head = head is not None
-        self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         self.consts = np.array([consts.log_opacity, consts.alpha_min, consts.alpha_max, ratio], np.float64)
         self.second = ratio > 0.0
         self.nbins = int(consts.bins) if consts.shading else 1
@@ -273,7 +274,8 @@ def composite_fused(
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
         head = head_depth.detach().to(dt).contiguous().numpy()
-    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), head, consts, batch, height, width,
+    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), table[:, 5].detach().contiguous().numpy(),
+                 head, consts, batch, height, width,
                  np.float32 if dt == torch.float32 else np.float64, silhouette_ratio)
     zs = table[:, 5].detach() * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
     out, visible = _FusedComposite.apply(table, zs, plan)

@@ -4,7 +4,10 @@ Each frame is cut into square screen tiles of ``tile`` x ``tile`` pixels (tile i
 (frame * nty + ty) * ntx + tx). Every (Gaussian, tile) pair where the Gaussian's pixel window
 (:class:`vid2haircut.render.footprint.Windows`) may touch the tile is an *instance*; instances are
 listed tile by tile, and inside a tile by increasing Gaussian index, so that every later
-summation has a fixed order. Tiles are then dealt to the worker threads (largest first, each to
+summation has a fixed order. A (Gaussian, tile) pair that the head hides entirely (its depth is
+not in front of the head at any pixel of the tile, :func:`tile_head_max`) is no instance: it
+would add no element, and its z_ref could only matter at pixels where it covers a kept element,
+which is in front of the head there and so nearer than it. Tiles are then dealt to the worker threads (largest first, each to
 the least loaded worker); which thread composites a tile never changes its result.
 """
 
@@ -36,13 +39,38 @@ def vstart(slope, u, v0):
 
 
 @njit(cache=True, parallel=True)
-def bin_windows(wint, wflt, frame, nframes, width, height, tile):
+def tile_head_max(head, has_head, nframes, width, height, tile):
+    """[NT] largest head depth over the pixels of each tile (+inf without a head; the dtype of
+    ``head`` [B, H, W])."""
+    ntx = (width + tile - 1) // tile
+    nty = (height + tile - 1) // tile
+    out = np.full(nframes * nty * ntx, np.inf, head.dtype)
+    if not has_head:
+        return out
+    for t in prange(out.shape[0]):
+        b = t // (ntx * nty)
+        r = t - b * ntx * nty
+        ty = r // ntx
+        tx = r - ty * ntx
+        m = head[b, ty * tile, tx * tile]
+        for y in range(ty * tile, min(ty * tile + tile, height)):
+            for x in range(tx * tile, min(tx * tile + tile, width)):
+                m = max(m, head[b, y, x])
+        out[t] = m
+    return out
+
+
+@njit(cache=True, parallel=True)
+def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
     """List the instances of every tile.
 
     Args:
         wint: [G, 4] int64 (horizontal, u_lo, ncols, height) of each window (ncols 0: not drawn).
         wflt: [G, 2] float32 (slope, v0). frame: [G] int64 frame of each Gaussian.
         nframes, width, height: image stack size; tile: tile size in pixels.
+        z: [G] camera depth of each Gaussian, hmax: [NT] largest head depth of each tile
+            (:func:`tile_head_max`, same dtype): no instance where z >= hmax (hidden; a NaN
+            depth is kept).
 
     Returns:
         gstart [G + 1] (instances of Gaussian g are gstart[g]:gstart[g + 1] in Gaussian order),
@@ -75,7 +103,11 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile):
             box[g, 0], box[g, 1], box[g, 2], box[g, 3] = ua // tile, ub // tile, vlo // tile, vhi // tile
         else:
             box[g, 0], box[g, 1], box[g, 2], box[g, 3] = vlo // tile, vhi // tile, ua // tile, ub // tile
-        cnt[g] = (box[g, 1] - box[g, 0] + 1) * (box[g, 3] - box[g, 2] + 1)
+        c = 0
+        for ty in range(box[g, 2], box[g, 3] + 1):
+            for tx in range(box[g, 0], box[g, 1] + 1):
+                c += not z[g] >= hmax[(frame[g] * nty + ty) * ntx + tx]
+        cnt[g] = c
     gstart = np.zeros(G + 1, np.int64)
     for g in range(G):
         gstart[g + 1] = gstart[g] + cnt[g]
@@ -85,8 +117,9 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile):
         j = gstart[g]
         for ty in range(box[g, 2], box[g, 3] + 1):
             for tx in range(box[g, 0], box[g, 1] + 1):
-                if j < gstart[g + 1]:
-                    inst_tile[j] = (frame[g] * nty + ty) * ntx + tx
+                t = (frame[g] * nty + ty) * ntx + tx
+                if j < gstart[g + 1] and not z[g] >= hmax[t]:
+                    inst_tile[j] = t
                     j += 1
     NT = nframes * nty * ntx
     # counting sort of the instances by tile, stable (Gaussian order inside a tile), in parallel over
