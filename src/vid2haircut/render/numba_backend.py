@@ -27,8 +27,8 @@ Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``; the r
 bitwise identical for any thread count. The kernels share the cores with torch's OpenMP workers,
 which spin for a while after each parallel torch op; importing vid2haircut before torch shortens
 that spin (``GOMP_SPINCOUNT``, see the package docstring). Memory: the forward pass keeps 16
-bytes per window element for the backward pass in float32 (24 in float64; ~160 MB allocated for
-4k strands at 256 x 256, about a third of it touched).
+bytes per window element for the backward pass in float32 (24 in float64; ~120 MB allocated for
+4k strands at 256 x 256, about 40% of it touched).
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ Per tile, forward (:func:`composite_forward`):
  4. w = -M l; per pixel sums of w z, w cos2a, w sin2a; largest w per instance (visibility).
 
 The elements (pixel, bin, d l / d power, l) stay in flat arrays at per-tile offsets (sized by the tile's
-window element count, an upper bound; about a third is used), and the backward pass
+window element count, an upper bound; about 40% is used), and the backward pass
 (:func:`composite_backward`) starts from them: Lb and -M again (same order, same values), then
 A. q = dL/dw, per instance dL/dz, dL/dc, dL/ds and G(b, p) = sum of q l; B. dL/dLb
 (:func:`vid2haircut.render.bins.gradient_table`); C. per element dL/dpower and per instance its
