@@ -6,9 +6,10 @@ Each frame is cut into square screen tiles of ``tile`` x ``tile`` pixels (tile i
 listed tile by tile, and inside a tile by increasing Gaussian index, so that every later
 summation has a fixed order. A (Gaussian, tile) pair that the head hides entirely (its depth is
 not in front of the head at any pixel of the tile, :func:`tile_head_max`) is no instance: it
-would add no element, and its z_ref could only matter at pixels where it covers a kept element,
-which is in front of the head there and so nearer than it. Tiles are then dealt to the worker threads (largest first, each to
-the least loaded worker); which thread composites a tile never changes its result.
+would add no element, and its z_ref could only matter at pixels where another window has a kept
+element, which is in front of the head there and so nearer than it. Tiles are then dealt to the
+worker threads (largest first, each to the least loaded worker); which thread composites a tile
+never changes its result.
 """
 
 from __future__ import annotations
