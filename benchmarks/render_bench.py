@@ -31,7 +31,7 @@ from vid2haircut.render import render_strands
 from vid2haircut.render.api import DEFAULT_ALPHA_MIN
 from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import segment_gaussians
-from vid2haircut.render.numba_backend import TILE, resolve_backend
+from vid2haircut.render.numba_backend import resolve_backend
 
 
 def hair_scene(n_strands: int, n_points: int = 32, seed: int = 0) -> np.ndarray:
@@ -120,39 +120,23 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
                 fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
 
 
-def windows_and_tiles(means, covs, valid, z, head, frame, height, width, power_min):
-    """The numba backend's setup: pixel windows, then instances per screen tile."""
-    from vid2haircut.render.numba_tiles import bin_windows, tile_head_max
-    from vid2haircut.render.numba_tiles import gaussian_windows as numba_windows
-
-    G = means.shape[0]
-    wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
-    numba_windows(means.numpy(), covs.numpy(), valid.numpy(), height, width, power_min, 4, 8, wint, wflt)
-    hmax = tile_head_max(head, True, 1, width, height, TILE)
-    return bin_windows(wint, wflt, frame.numpy(), 1, width, height, TILE, z, hmax)
-
-
 def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str = "auto") -> None:
     """Print where the time of one forward+backward goes (ms per stage)."""
     pts, K, E, hd = setup(n_strands, size, 1, device)
     G = pts.shape[1] * (pts.shape[2] - 1)
     frame = torch.zeros(G, dtype=torch.int64, device=device)
     power_min = math.log(DEFAULT_ALPHA_MIN)
-    if backend == "numba":  # the fused projection, then pixel windows + screen-tile binning
-        from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH
-        from vid2haircut.render.numba_backend import project_fused
+    if backend == "numba":  # each kernel timed inside render_strands, the backend's real path
+        import render_kernels
 
-        proj = (pts, K, E, DEFAULT_STRAND_WIDTH, DEFAULT_DILATION, 1e-2)
-        t_g = best_ms(lambda: project_fused(*proj), device, repeat)
-        table, covs, valid = project_fused(*proj)
-        z, head = table[:, 5].contiguous().numpy(), hd.numpy()
-        t_fp = best_ms(lambda: windows_and_tiles(table[:, :2], covs, valid, z, head, frame, size, size, power_min),
-                       device, repeat)
+        render_kernels.main(["--strands", str(n_strands), "--size", str(size), "--calls", str(max(repeat, 5))])
+        setup_times = ""
     else:
         t_g = best_ms(lambda: segment_gaussians(pts, K, E), device, repeat)
         g = segment_gaussians(pts, K, E)
         args = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.valid.reshape(G), frame, size, size, power_min)
         t_fp = best_ms(lambda: build_footprint(*args), device, repeat)
+        setup_times = f"gaussians {t_g:.1f}, footprint {t_fp:.1f}, "
     pts.requires_grad_(True)
 
     def fb(shading):
@@ -164,8 +148,7 @@ def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str 
         t_f = best_ms(lambda: render_strands(pts, K, E, size, size, head_depth=hd, backend=backend), device, repeat)
     t_fb = best_ms(lambda: fb(True), device, repeat)
     t_sil = best_ms(lambda: fb(False), device, repeat)
-    print(f"\nbreakdown {n_strands} strands at {size}x{size} (ms): gaussians {t_g:.1f}, "
-          f"{'windows+tiles' if backend == 'numba' else 'footprint'} {t_fp:.1f}, "
+    print(f"\nbreakdown {n_strands} strands at {size}x{size} (ms): {setup_times}"
           f"forward {t_f:.1f}, forward+backward {t_fb:.1f}, silhouette-only forward+backward {t_sil:.1f}")
 
 
@@ -178,7 +161,7 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
                     help="compositing kernels (auto: numba on CPU when installed, else torch)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per case (the best is printed)")
-    ap.add_argument("--breakdown", action="store_true", help="also print the time per stage (4k strands, 256x256)")
+    ap.add_argument("--breakdown", action="store_true", help="also print the time per stage (4k strands, 256x256; numba: per kernel, benchmarks/render_kernels.py)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
