@@ -161,7 +161,8 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
                     help="compositing kernels (auto: numba on CPU when installed, else torch)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per case (the best is printed)")
-    ap.add_argument("--breakdown", action="store_true", help="also print the time per stage (4k strands, 256x256; numba: per kernel, benchmarks/render_kernels.py)")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also print the time per stage (4k strands, 256x256; numba: per kernel, render_kernels.py)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
