@@ -22,10 +22,11 @@ Per tile, forward (:func:`composite_forward`):
 
 The elements (pixel, bin, d l / d power, l) stay in flat arrays at per-tile offsets (sized by the tile's
 window element count, an upper bound; about 40% is used), and the backward pass
-(:func:`composite_backward`) starts from them: Lb and -M again (same order, same values), then
-A. q = dL/dw, per instance dL/dz, dL/dc, dL/ds and G(b, p) = sum of q l; B. dL/dLb
+(:func:`composite_backward`) starts from them: A. Lb again (same order, same values) and
+G(b, p) = sum of q l with q = dL/dw, in one loop over the elements
+(:func:`.numba_walk.bin_and_grad_sums`: G needs no weights), then -M; B. dL/dLb
 (:func:`vid2haircut.render.bins.gradient_table`); C. per element dL/dpower and per instance its
-moments sum gp (dx, dy, dx^2, dx dy, dy^2), turned into dL/d(mean, conic) by
+moments sum gp (dx, dy, dx^2, dx dy, dy^2) and dL/dz, dL/dc, dL/ds, turned into dL/d(mean, conic) by
 :func:`reduce_gradients`. Per-element values have the input dtype, internal sums are float64;
 outputs have the input dtype.
 """
@@ -37,8 +38,8 @@ from numba import njit, prange
 
 from vid2haircut.render.numba_lines import fold_zref, load_head, walk_lines
 from vid2haircut.render.numba_walk import (C_AMAX, C_AMIN, C_RATIO, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
-                                           alpha_and_l, alpha_and_l2, bin_sums, gradient_table, tile_box,
-                                           weight_table)
+                                           alpha_and_l, alpha_and_l2, bin_and_grad_sums, bin_sums, gradient_table,
+                                           tile_box, weight_table)
 
 N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
@@ -103,7 +104,7 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             zref = np.full(npx, np.inf, zs.dtype)
             if nbins > 1:
                 fold_zref(zref2, zref, x1, x0, y1, y0, L)
-            Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, True)
+            Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx)
             acc = np.zeros((5, npx))
             for bb in range(nb):  # sum of l, in bin order
                 for p in range(npx):
@@ -156,7 +157,6 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
             px, py = _pixel_xy(x0, x1, y0, y1)
             npx = px.shape[0]
             i0, i1 = tile_start[t], tile_start[t + 1]
-            Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, gpar[:0, 0], gpar[:0, 0], nbins, npx, False)
             gl = np.zeros((4, npx))
             g2 = np.zeros(npx if second else 0)
             for p in range(npx):
@@ -164,37 +164,30 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
                     gl[ch, p] = grad[b, int(py[p]), int(px[p]), ch]
             for p in range(g2.shape[0]):
                 g2[p] = grad[b, int(py[p]), int(px[p]), c2]
-            if nbins > 1:
+            shade = nbins > 1
+            if shade:  # A: Lb and G(b, p) = sum of q l in one loop; B: dL/dLb
+                Lb, Gt, nb = bin_and_grad_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, gpar, gl, nbins, npx)
                 negM, Etab = weight_table(Lb, nb)
-                Gt = np.zeros((nbins, npx))
-                for k in range(i0, i1):  # A: d loss / d w, per instance and per bin
-                    g = sorted_g[k]
-                    z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
-                    sz = sc = ss = 0.0
-                    for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
-                        p, bn = np.uint64(e_p[e]), np.uint64(e_bin[e])
-                        w = negM[bn, p] * e_la[e]
-                        sz += gl[1, p] * w
-                        sc += gl[2, p] * w
-                        ss += gl[3, p] * w
-                        Gt[bn, p] += (gl[1, p] * z + gl[2, p] * c + gl[3, p] * s) * e_la[e]
-                    acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
                 H = gradient_table(Lb, nb, negM, Etab, Gt, gl[0])
-            else:
+            else:  # silhouette only: sum l is all there is
                 negM, H = np.zeros((1, npx)), gl[0:1].copy()
-                for k in range(i0, i1):  # silhouette only: no depth or direction gradients
-                    acc[k, 5], acc[k, 6], acc[k, 7] = 0.0, 0.0, 0.0
-            for k in range(i0, i1):  # C: d loss / d power and its moments per instance
+            for k in range(i0, i1):  # C: d loss / d power and its moments, d loss / d (z, c, s), per instance
                 g = sorted_g[k]
                 z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
                 mx, my = gpar[g, G_MX], gpar[g, G_MY]
-                s0 = s1 = s2 = s3 = s4 = 0.0
+                s0 = s1 = s2 = s3 = s4 = sz = sc = ss = 0.0
                 for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
                     p, bn = np.uint64(e_p[e]), np.uint64(e_bin[e])
                     q = gl[1, p] * z + gl[2, p] * c + gl[3, p] * s  # d loss / d w
-                    gp = (H[bn, p] + q * negM[bn, p]) * e_dl[e]  # d l / d power, 0 where alpha was clamped
+                    nm = negM[bn, p]
+                    gp = (H[bn, p] + q * nm) * e_dl[e]  # d l / d power, 0 where alpha was clamped
                     if second:
                         gp += g2[p] * e_dl2[e]
+                    if shade:
+                        w = nm * e_la[e]
+                        sz += gl[1, p] * w
+                        sc += gl[2, p] * w
+                        ss += gl[3, p] * w
                     dx, dy = px[p] - mx, py[p] - my
                     s0 += gp * dx
                     s1 += gp * dy
@@ -202,6 +195,7 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
                     s3 += gp * dx * dy
                     s4 += gp * dy * dy
                 acc[k, 0], acc[k, 1], acc[k, 2], acc[k, 3], acc[k, 4] = s0, s1, s2, s3, s4
+                acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
 
 
 @njit(**_PAR)

@@ -105,32 +105,46 @@ def alpha_and_l2(pw, hf, amin, amax, ratio, dl2, la2):
 
 
 @njit(**JIT)
-def bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx, assign):
+def bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx):
     """(Lb [nbins, npx], nb): sum of l per bin and pixel of the elements of instances i0:i1, and
     the number of bins in use (1 + the largest bin of an element; rows from nb on are 0).
 
-    With ``assign`` the bins are computed first (clamp(floor(zs - z_ref), 0, nbins - 1), in the
-    dtype of ``zs``) and stored in ``e_bin``; otherwise the stored bins are used.
+    The bins (clamp(floor(zs - z_ref), 0, nbins - 1), in the dtype of ``zs``) are computed and
+    stored in ``e_bin`` (the backward pass reads them: :func:`bin_and_grad_sums`).
     """
     Lb = np.zeros((nbins, npx))
     top = nbins - 1.0
     nb = 0
     for k in range(i0, i1):
-        if assign:
-            zk = zs[sorted_g[k]]
-            for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
-                p = np.uint64(e_p[e])
-                d = zk - zref[p]  # in the dtype of zs
-                bn = int(min(d, top)) if d > 0.0 else 0  # clamp(floor(d), 0, top); 0 for NaN
-                e_bin[e] = bn
-                Lb[np.uint64(bn), p] += e_la[e]
-                nb = max(nb, bn + 1)
-        else:
-            for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
-                bn = e_bin[e]
-                Lb[np.uint64(bn), np.uint64(e_p[e])] += e_la[e]
-                nb = max(nb, bn + 1)
+        zk = zs[sorted_g[k]]
+        for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
+            p = np.uint64(e_p[e])
+            d = zk - zref[p]  # in the dtype of zs
+            bn = int(min(d, top)) if d > 0.0 else 0  # clamp(floor(d), 0, top); 0 for NaN
+            e_bin[e] = bn
+            Lb[np.uint64(bn), p] += e_la[e]
+            nb = max(nb, bn + 1)
     return Lb, nb
+
+
+@njit(**JIT)
+def bin_and_grad_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, gpar, gl, nbins, npx):
+    """(Lb, Gt [nbins, npx], nb) of the backward pass from the stored bins: Lb as :func:`bin_sums`,
+    and Gt = sum of (d loss / d w) l per bin and pixel, d loss / d w = gl[1] z + gl[2] cos2a +
+    gl[3] sin2a at the element's pixel (``gl`` [4, npx], the upstream gradients of the tile):
+    one loop over the elements for both tables, each summed in element order."""
+    Lb, Gt = np.zeros((nbins, npx)), np.zeros((nbins, npx))
+    nb = 0
+    for k in range(i0, i1):
+        g = sorted_g[k]
+        z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
+        for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
+            bn, p = np.uint64(e_bin[e]), np.uint64(e_p[e])
+            la = e_la[e]
+            Lb[bn, p] += la
+            Gt[bn, p] += (gl[1, p] * z + gl[2, p] * c + gl[3, p] * s) * la
+            nb = max(nb, e_bin[e] + 1)
+    return Lb, Gt, nb
 
 
 @njit(cache=True, inline="always")
