@@ -22,8 +22,8 @@ Numba backend (``python benchmarks/render_bench.py --backend numba``, 2 threads,
 on a 2-core AMD EPYC (Zen 4, AVX-512), forward 28-31 ms and forward+backward 50-52 ms, 10.2x a
 scatter_add_ of the same 7.6 M values (4.9 ms there; the code before the explicit vector line kernel
 of :mod:`.numba_simd`, the register compaction, the OpenMP spin setting, the culling of tiles
-hidden by the head and the merged backward passes: 99 / 133 ms); on a 2-core Intel Xeon (AVX-512) the code before measured
-52 / 84 ms, 7.0x its 12 ms scatter-add.
+hidden by the head and the merged backward passes: 99 / 133 ms); on a 2-core Intel Xeon (AVX-512)
+the code before measured 52 / 84 ms, 7.0x its 12 ms scatter-add.
 Breakdown and history: README, Performance; benchmarks/RESULTS.md, "The renderer on an AMD EPYC
 (Zen 4)".
 """
