@@ -274,10 +274,10 @@ def composite_fused(
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
         head = head_depth.detach().to(dt).contiguous().numpy()
-    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), table[:, 5].detach().contiguous().numpy(),
-                 head, consts, batch, height, width,
-                 np.float32 if dt == torch.float32 else np.float64, silhouette_ratio)
-    zs = table[:, 5].detach() * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
+    z = table[:, 5].detach().contiguous()
+    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), z.numpy(), head, consts, batch, height,
+                 width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio)
+    zs = z * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
     out, visible = _FusedComposite.apply(table, zs, plan)
     log_t = out[..., 0]
     weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
