@@ -335,3 +335,20 @@ def test_near_plane_zero_renders(backend):
     a = render_strands(pts, K, torch.eye(4, dtype=DT)[None], 64, 64, backend=backend)
     b = render_strands(pts, K, torch.eye(4, dtype=DT)[None], 64, 64, backend=backend, near=0.0)
     assert float(a.silhouette.sum()) > 1 and torch.allclose(a.silhouette, b.silhouette)
+
+
+def test_angle_is_read_from_direction_and_zero_where_empty():
+    """StrandRender.angle: a in [0, pi) of the doubled-angle direction, 0 where direction is (0, 0)
+    (signed zeros included: atan2(-0, -0) = -pi would give pi/2), detached."""
+    from vid2haircut.render.types import StrandRender
+
+    a = torch.tensor([0.0, 0.3, math.pi / 2, 2.9, math.pi - 1e-4])
+    d = torch.stack([torch.cos(2 * a), torch.sin(2 * a)], -1)
+    d = torch.cat([d, torch.tensor([[0.0, 0.0], [-0.0, -0.0], [-0.0, 0.0]])])[None, None].requires_grad_(True)
+    z = torch.zeros(1, 1, 8)
+    r = StrandRender(z, d, z, z, z.bool(), z.bool(), None)
+    got = r.angle[0, 0]
+    assert not got.requires_grad
+    assert torch.allclose(got[:5], a, atol=1e-5)
+    assert bool((got >= 0).all() and (got < math.pi).all())
+    assert got[5:].tolist() == [0.0, 0.0, 0.0]

@@ -213,6 +213,7 @@ def write_renders(out_dir: str | Path, out: Any, data: Any, frames: torch.Tensor
     from vid2haircut.fit.image_terms import quantile_normalize
 
     paths = []
+    angle = out.angle  # computed on each read
     for b, f in enumerate(frames.tolist()):
         dirs = data.direction[f].cpu().numpy()
         tgt = {"mask": data.mask[f].cpu().numpy(), "angle": np.remainder(0.5 * np.arctan2(dirs[..., 1], dirs[..., 0]),
@@ -221,7 +222,7 @@ def write_renders(out_dir: str | Path, out: Any, data: Any, frames: torch.Tensor
                "depth_valid": data.depth_valid[f].cpu().numpy()}
         m = out.mask[b].detach()
         depth = (quantile_normalize(out.depth[b].detach(), m) if int(m.sum()) > 1 else out.depth[b].detach())
-        ren = {"silhouette": out.silhouette[b].detach().cpu().numpy(), "angle": out.angle[b].detach().cpu().numpy(),
+        ren = {"silhouette": out.silhouette[b].detach().cpu().numpy(), "angle": angle[b].cpu().numpy(),
                "depth": depth.cpu().numpy(), "mask": m.cpu().numpy()}
         p = Path(out_dir) / "renders" / f"frame_{int(data.frames[f]):05d}.png"
         write_image(p, render_panel(tgt, ren))

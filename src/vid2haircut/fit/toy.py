@@ -116,13 +116,14 @@ def toy_problem(size: int = 40, n_frames: int = 3, map_res: int = 12, k: int = 1
         out = render_strands(guides[None].expand(len(poses), -1, -1, -1), Kt, cfh, size, size, strand_width=0.004,
                              head_depth=hd)
     targets = []
+    angle = out.angle  # computed on each read
     for b in range(len(poses)):
         m = out.mask[b].numpy()
         d = out.depth[b].numpy()
         if m.sum() > 2:
             lo, hi = np.quantile(d[m], [0.05, 0.95])
             d = np.where(m, (d - lo) / max(hi - lo, 1e-6), 0.0)
-        targets.append({"mask": out.silhouette[b].numpy().astype(np.float32), "angle": out.angle[b].numpy(),
+        targets.append({"mask": out.silhouette[b].numpy().astype(np.float32), "angle": angle[b].numpy(),
                         "confidence": m.astype(np.float32), "depth": d.astype(np.float32), "depth_valid": m})
     frames = list(range(len(poses)))
     data = make_fit_data(frames, targets, K, w2c, poses, head, "proxy-v1", size, True, device)

@@ -188,12 +188,10 @@ def _finish(sums: PixelSums, visibility: Tensor, g) -> StrandRender:
     norm2 = (sums.dirs * sums.dirs).sum(-1)
     has_dir = norm2 > 1e-20
     inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, torch.ones_like(norm2))), torch.zeros_like(norm2))
-    direction = sums.dirs * inv[..., None]
-    angle = torch.remainder(0.5 * torch.atan2(direction[..., 1], direction[..., 0]), math.pi).detach()
-    angle = torch.where(has_dir & (angle < math.pi - 1e-6), angle, torch.zeros_like(angle))
+    direction = sums.dirs * inv[..., None]  # (0, 0) where there is no direction (StrandRender.angle)
     mask = (silhouette > 0.5) & filled
     depth_normalized = normalize_depth(depth, mask)
-    return StrandRender(silhouette, direction, angle, depth, depth_normalized, mask, visibility, g)
+    return StrandRender(silhouette, direction, depth, depth_normalized, mask, visibility, g)
 
 
 def normalize_depth(depth: Tensor, mask: Tensor) -> Tensor:

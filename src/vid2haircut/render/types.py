@@ -6,8 +6,10 @@ H x W = image size, T = number of (Gaussian, pixel) contributions of one call.
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
+import torch
 from torch import Tensor
 
 
@@ -89,7 +91,6 @@ class StrandRender(NamedTuple):
         direction: [B, H, W, 2] undirected 2D strand direction as the doubled-angle unit vector
             (cos 2a, sin 2a), a in [0, pi) measured from image x towards image y (down);
             (0, 0) where no hair is drawn.
-        angle: [B, H, W] a in [0, pi) (from ``direction``; 0 where empty).
         depth: [B, H, W] composited camera z in metres, sum(w z) / sum(w); 0 where empty
             (silhouette == 0).
         depth_normalized: [B, H, W] depth min-max normalised to [0, 1] inside ``mask`` per frame,
@@ -98,13 +99,25 @@ class StrandRender(NamedTuple):
         visibility: [B, N, P - 1] bool, True when the segment is part of the visible hair surface
             somewhere in the image (see :mod:`vid2haircut.render.raster`).
         gaussians: the screen-space Gaussians that were drawn.
+
+    ``angle`` ([B, H, W], no gradient) is computed from ``direction`` when read: the fitting
+    losses use ``direction``, and an atan2 over every pixel costs ~4.5 ms per Stage 2 render of 6
+    frames at 224 x 224 (2 threads). Read it once per render (each read computes it anew).
     """
 
     silhouette: Tensor
     direction: Tensor
-    angle: Tensor
     depth: Tensor
     depth_normalized: Tensor
     mask: Tensor
     visibility: Tensor
     gaussians: Gaussians2D
+
+    @property
+    def angle(self) -> Tensor:
+        """[B, H, W] a in [0, pi) of ``direction`` (0 where empty, i.e. where ``direction`` is
+        (0, 0)); detached."""
+        d = self.direction.detach()
+        a = torch.remainder(0.5 * torch.atan2(d[..., 1], d[..., 0]), math.pi)
+        drawn = (d[..., 0] != 0) | (d[..., 1] != 0)
+        return torch.where(drawn & (a < math.pi - 1e-6), a, torch.zeros_like(a))
