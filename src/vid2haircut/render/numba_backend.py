@@ -190,7 +190,9 @@ class _FusedComposite(torch.autograd.Function):
         gpar = table.detach().contiguous().numpy()
         zs_np = zs.detach().contiguous().numpy()
         B, H, W = plan.shape
-        out = np.zeros((B, H, W, (4 if plan.nbins > 1 else 1) + plan.second), zs_np.dtype)
+        dt, shade = zs_np.dtype, plan.nbins > 1
+        out = (np.zeros((B, H, W), dt), np.zeros((B, H, W) if shade else (0, 0, 0), dt),
+               np.zeros((B, H, W, 2) if shade else (0, 0, 0, 0), dt), np.zeros((B, H, W) if plan.second else (0, 0, 0), dt))
         maxw = np.zeros(plan.sorted_g.shape[0])
         cap = plan.capacity
         cap2 = cap if plan.second else 0
@@ -208,15 +210,17 @@ class _FusedComposite(torch.autograd.Function):
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
         visible_t = torch.from_numpy(visible)
         ctx.mark_non_differentiable(visible_t)
-        return torch.from_numpy(out), visible_t
+        ctx.set_materialize_grads(False)  # outputs the loss does not reach: None (zeros here, as float64)
+        return (*(torch.from_numpy(o) for o in out), visible_t)
 
     @staticmethod
-    def backward(ctx, grad, _g_vis):
+    def backward(ctx, g_l, g_z, g_d, g_2, _g_vis):
         from vid2haircut.render import numba_kernels as nk
 
         plan = ctx.plan
         B, H, W = plan.shape
-        g = grad.detach().to(torch.float64).contiguous().numpy()
+        g = tuple(np.zeros(shape) if t is None else t.detach().to(torch.float64).contiguous().numpy()
+                  for t, shape in zip((g_l, g_z, g_d, g_2), ((B, H, W), (B, H, W), (B, H, W, 2), (B, H, W))))
         acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))  # composite_backward writes every entry
         grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
         with _LOCK:
@@ -278,11 +282,10 @@ def composite_fused(
     plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), z.numpy(), head, consts, batch, height,
                  width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio)
     zs = z * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
-    out, visible = _FusedComposite.apply(table, zs, plan)
-    log_t = out[..., 0]
+    log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)
     weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
-    log_t2 = out[..., -1] if plan.second else None
+    log_t2 = log_t2 if plan.second else None
     if not consts.shading:
         zeros = torch.zeros_like(log_t)
         return PixelSums(log_t, weight, zeros, torch.stack([zeros, zeros], -1)), visible, log_t2
-    return PixelSums(log_t, weight, out[..., 1], out[..., 2:4]), visible, log_t2
+    return PixelSums(log_t, weight, wz, wdirs), visible, log_t2

@@ -74,12 +74,15 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
         elems: (pixel int32, bin int32, d l / d power, l, d l2 / d power, l2 (input dtype))
             element arrays, filled (the last two: the second silhouette's, empty without one).
         e_range: [n_instances, 2] filled with the element range of each instance.
-        out: [B, H, W, C] zeros, filled with (sum l, sum w z, sum w cos2a, sum w sin2a) (without
-            shading: sum l only), then sum l2 when there is a second silhouette.
+        out: (sum l [B, H, W], sum w z [B, H, W], (sum w cos2a, sum w sin2a) [B, H, W, 2], sum l2
+            [B, H, W]) zeros in the input dtype, filled (separate arrays: each becomes one output
+            of the autograd function, with no slicing in its graph); without shading the second
+            and third, without a second silhouette the last, are not written (may be empty).
         maxw: [n_instances] filled with each instance's largest weight.
         compress: the walk's compaction (:func:`.numba_lines.walk_lines`; only with ``tile`` 16).
     """
     e_p, e_bin, e_al, e_la, e_dl2, e_la2 = elems
+    o_l, o_z, o_d, o_2 = out
     second = consts[C_RATIO] > 0.0
     L = tile
     for wk in prange(work_start.shape[0] - 1):
@@ -126,13 +129,15 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
                         acc[3, p] += w * s
                         mw = max(mw, w)
                     maxw[k] = mw
-            nch = out.shape[3] - (1 if second else 0)
             for p in range(npx):
                 y, x = y0 + p // tw, x0 + p % tw
-                for ch in range(nch):
-                    out[b, y, x, ch] = acc[ch, p]
+                o_l[b, y, x] = acc[0, p]
+                if nbins > 1:
+                    o_z[b, y, x] = acc[1, p]
+                    o_d[b, y, x, 0] = acc[2, p]
+                    o_d[b, y, x, 1] = acc[3, p]
                 if second:
-                    out[b, y, x, nch] = acc[4, p]
+                    o_2[b, y, x] = acc[4, p]
 
 
 @njit(**_PAR)
@@ -141,15 +146,15 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
     """Backward compositing of all tiles from the elements kept by :func:`composite_forward`.
 
     Args:
-        grad: [B, H, W, C] upstream gradient of ``out``; the other arguments as given to (and
-            filled by) :func:`composite_forward` (consts[3] > 0: the last channel is the second
-            silhouette's).
+        grad: the upstream gradients of the four arrays of ``out`` of :func:`composite_forward`, in
+            float64 (those it did not write are not read); the other arguments as given to (and
+            filled by) :func:`composite_forward`.
         acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``; every entry is
             written, the array need not be zeroed).
     """
     e_p, e_bin, e_dl, e_la, e_dl2, e_la2 = elems
+    g_l, g_z, g_d, g_2 = grad
     second = consts[C_RATIO] > 0.0
-    c2 = grad.shape[3] - 1  # the second silhouette's channel
     for wk in prange(work_start.shape[0] - 1):
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
@@ -159,12 +164,16 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
             i0, i1 = tile_start[t], tile_start[t + 1]
             gl = np.zeros((4, npx))
             g2 = np.zeros(npx if second else 0)
-            for p in range(npx):
-                for ch in range(grad.shape[3] - (1 if second else 0)):
-                    gl[ch, p] = grad[b, int(py[p]), int(px[p]), ch]
-            for p in range(g2.shape[0]):
-                g2[p] = grad[b, int(py[p]), int(px[p]), c2]
             shade = nbins > 1
+            for p in range(npx):
+                y, x = int(py[p]), int(px[p])
+                gl[0, p] = g_l[b, y, x]
+                if shade:
+                    gl[1, p] = g_z[b, y, x]
+                    gl[2, p] = g_d[b, y, x, 0]
+                    gl[3, p] = g_d[b, y, x, 1]
+            for p in range(g2.shape[0]):
+                g2[p] = g_2[b, int(py[p]), int(px[p])]
             if shade:  # A: Lb and G(b, p) = sum of q l in one loop; B: dL/dLb
                 Lb, Gt, nb = bin_and_grad_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, gpar, gl, nbins, npx)
                 negM, Etab = weight_table(Lb, nb)
