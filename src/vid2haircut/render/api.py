@@ -183,11 +183,11 @@ def _finish(sums: PixelSums, visibility: Tensor, g) -> StrandRender:
     silhouette = sums.weight
     weight = sums.weight
     filled = weight > 1e-12
-    safe_w = torch.where(filled, weight, torch.ones_like(weight))
-    depth = torch.where(filled, sums.depth / safe_w, torch.zeros_like(weight))
+    safe_w = torch.where(filled, weight, 1.0)  # scalar branches: no filled tensors to allocate
+    depth = torch.where(filled, sums.depth / safe_w, 0.0)
     norm2 = (sums.dirs * sums.dirs).sum(-1)
     has_dir = norm2 > 1e-20
-    inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, torch.ones_like(norm2))), torch.zeros_like(norm2))
+    inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, 1.0)), 0.0)
     direction = sums.dirs * inv[..., None]  # (0, 0) where there is no direction (StrandRender.angle)
     mask = (silhouette > 0.5) & filled
     depth_normalized = normalize_depth(depth, mask)
@@ -200,9 +200,9 @@ def normalize_depth(depth: Tensor, mask: Tensor) -> Tensor:
     Differentiable (the gradient reaches the pixels holding the minimum and maximum too).
     """
     big = torch.finfo(depth.dtype).max
-    dmin = torch.where(mask, depth, torch.full_like(depth, big)).amin((1, 2), keepdim=True)
-    dmax = torch.where(mask, depth, torch.full_like(depth, -big)).amax((1, 2), keepdim=True)
+    dmin = torch.where(mask, depth, big).amin((1, 2), keepdim=True)
+    dmax = torch.where(mask, depth, -big).amax((1, 2), keepdim=True)
     any_ = mask.any((1, 2), keepdim=True)
-    dmin = torch.where(any_, dmin, torch.zeros_like(dmin))
-    span = torch.where(any_, dmax - dmin, torch.ones_like(dmax)).clamp_min(1e-8)
-    return torch.where(mask, (depth - dmin) / span, torch.zeros_like(depth))
+    dmin = torch.where(any_, dmin, 0.0)
+    span = torch.where(any_, dmax - dmin, 1.0).clamp_min(1e-8)
+    return torch.where(mask, (depth - dmin) / span, 0.0)
