@@ -28,7 +28,7 @@ KERNELS = {
     "numba_project": ("project_forward", "project_backward"),
     "numba_tiles": ("gaussian_windows", "tile_head_max", "bin_windows", "assign_tiles"),
     "numba_walk": ("tile_bounds",),
-    "numba_kernels": ("composite_forward", "composite_backward", "reduce_visibility", "reduce_gradients"),
+    "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
 }
 
 

@@ -193,7 +193,6 @@ class _FusedComposite(torch.autograd.Function):
         dt, shade = zs_np.dtype, plan.nbins > 1
         out = (np.zeros((B, H, W), dt), np.zeros((B, H, W) if shade else (0, 0, 0), dt),
                np.zeros((B, H, W, 2) if shade else (0, 0, 0, 0), dt), np.zeros((B, H, W) if plan.second else (0, 0, 0), dt))
-        maxw = np.zeros(plan.sorted_g.shape[0])
         cap = plan.capacity
         cap2 = cap if plan.second else 0
         elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, gpar.dtype), np.empty(cap, gpar.dtype),
@@ -203,10 +202,8 @@ class _FusedComposite(torch.autograd.Function):
         with _LOCK:
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                  plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
-                                 TILE, plan.offsets, elems, e_range, out, maxw,
+                                 TILE, plan.offsets, elems, e_range, out, plan.vis_weight, visible,
                                  numba_simd.HAS_COMPRESS and TILE == 16)  # numba_simd.line16: 16 lanes
-            if plan.nbins > 1:
-                nk.reduce_visibility(plan.gstart, plan.inst_pos, maxw, plan.vis_weight, visible)
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
         visible_t = torch.from_numpy(visible)
         ctx.mark_non_differentiable(visible_t)

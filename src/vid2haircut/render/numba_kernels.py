@@ -8,9 +8,10 @@ min(exp(power), alpha_max) kept when > alpha_min, times the head factor clamp((h
 in the input dtype and z_ref(p) the smallest zs of the windows covering p; w = -M(p, bin) l.
 
 Work is split by screen tile (:mod:`.numba_tiles`): one thread composites a whole tile, with all
-per-pixel tables private to it, so there are no write races and no atomics, and every sum runs in
-a fixed order (instances of a tile by Gaussian index, elements in window order, per-instance
-results reduced per Gaussian in instance order): results do not depend on the number of threads.
+per-pixel tables private to it, so there are no atomics and no write races (but for the visibility
+flags, which are only ever set to True), and every sum runs in a fixed order (instances of a tile by
+Gaussian index, elements in window order, per-instance results reduced per Gaussian in instance
+order): results do not depend on the number of threads.
 Per tile, forward (:func:`composite_forward`):
 
  1. one walk of the windows, line by line (:func:`.numba_lines.walk_lines`): z_ref over every
@@ -18,7 +19,8 @@ Per tile, forward (:func:`composite_forward`):
     alpha, l and d l / d power in one vectorised loop (:func:`.numba_walk.alpha_and_l`);
  2. bins and Lb(b, p) = sum of l per (bin, pixel);
  3. -M(b, p) = -exp(Lx) expm1(Lb) / Lb (:func:`vid2haircut.render.bins.weight_table`);
- 4. w = -M l; per pixel sums of w z, w cos2a, w sin2a; largest w per instance (visibility).
+ 4. w = -M l; per pixel sums of w z, w cos2a, w sin2a; the largest w of each instance, and the
+    Gaussian marked visible when it reaches ``vis_weight``.
 
 The elements (pixel, bin, d l / d power, l) stay in flat arrays at per-tile offsets (sized by the tile's
 window element count, an upper bound; about 40% is used), and the backward pass
@@ -59,7 +61,8 @@ def _pixel_xy(x0, x1, y0, y1):
 
 @njit(**_PAR)
 def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g,
-                      work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, maxw, compress):
+                      work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, vis_weight, visible,
+                      compress):
     """Forward compositing of all tiles.
 
     Args:
@@ -78,7 +81,10 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             [B, H, W]) zeros in the input dtype, filled (separate arrays: each becomes one output
             of the autograd function, with no slicing in its graph); without shading the second
             and third, without a second silhouette the last, are not written (may be empty).
-        maxw: [n_instances] filled with each instance's largest weight.
+        vis_weight, visible: [G] bool, False on entry; set True for a Gaussian when the largest
+            weight of one of its instances reaches ``vis_weight`` (with shading only). Only True
+            is ever stored, by whichever thread composites the instance's tile: the same value
+            for any thread count and order (the one shared write of these kernels).
         compress: the walk's compaction (:func:`.numba_lines.walk_lines`; only with ``tile`` 16).
     """
     e_p, e_bin, e_al, e_la, e_dl2, e_la2 = elems
@@ -128,7 +134,8 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
                         acc[2, p] += w * c
                         acc[3, p] += w * s
                         mw = max(mw, w)
-                    maxw[k] = mw
+                    if mw >= vis_weight:
+                        visible[g] = True
             for p in range(npx):
                 y, x = y0 + p // tw, x0 + p % tw
                 o_l[b, y, x] = acc[0, p]
@@ -205,16 +212,6 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
                     s4 += gp * dy * dy
                 acc[k, 0], acc[k, 1], acc[k, 2], acc[k, 3], acc[k, 4] = s0, s1, s2, s3, s4
                 acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
-
-
-@njit(**_PAR)
-def reduce_visibility(gstart, inst_pos, maxw, vis_weight, visible):
-    """visible [G] bool: the largest weight of some instance of the Gaussian reaches ``vis_weight``."""
-    for g in prange(gstart.shape[0] - 1):
-        vis = False
-        for j in range(gstart[g], gstart[g + 1]):
-            vis = vis or maxw[inst_pos[j]] >= vis_weight
-        visible[g] = vis
 
 
 @njit(**_PAR)
