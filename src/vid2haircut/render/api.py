@@ -19,8 +19,8 @@ fwd+bwd is ~40x that ceiling (~13 gather/scatter and ~55 elementwise passes over
 contributions, plus ~65 ms of footprint building). On an H100 (one chunk): fwd+bwd ~17-50 ms
 per frame, ~32 ms for 8 frames per call.
 Numba backend (``python benchmarks/render_bench.py --backend numba``, 2 threads, torch 2.13):
-on a 2-core AMD EPYC (Zen 4, AVX-512), forward 28-31 ms and forward+backward 50-52 ms, 10.2x a
-scatter_add_ of the same 7.6 M values (4.9 ms there; the code before the explicit vector line kernel
+on a 2-core AMD EPYC (Zen 4, AVX-512), forward 27-32 ms and forward+backward 49-53 ms, 9.9-10.4x a
+scatter_add_ of the same 7.6 M values (4.9-5.1 ms there; the code before the explicit vector line kernel
 of :mod:`.numba_simd`, the register compaction, the OpenMP spin setting, the culling of tiles
 hidden by the head and the merged backward passes: 99 / 133 ms); on a 2-core Intel Xeon (AVX-512)
 the code before measured 52 / 84 ms, 7.0x its 12 ms scatter-add.
