@@ -117,6 +117,11 @@ class _Plan:
         self.vis_weight = float(consts.vis_weight)
         self.shape = (batch, height, width)
         self.work_start, self.work_tiles = numba_tiles.assign_tiles(self.tile_start, numba.get_num_threads())
+        # shapes of the kernels' four per-pixel outputs (sum l, sum w z, direction sums, sum l2) and
+        # of their gradients; empty where the kernels neither write nor read them
+        shade, img, none = self.nbins > 1, (batch, height, width), (0, 0, 0)
+        self.out_shapes = (img, img if shade else none, img + (2,) if shade else none + (0,),
+                           img if self.second else none)
 
 
 def gaussian_table(means: Tensor, covs: Tensor, depths: Tensor, dirs: Tensor) -> Tensor:
@@ -190,9 +195,7 @@ class _FusedComposite(torch.autograd.Function):
         gpar = table.detach().contiguous().numpy()
         zs_np = zs.detach().contiguous().numpy()
         B, H, W = plan.shape
-        dt, shade = zs_np.dtype, plan.nbins > 1
-        out = (np.zeros((B, H, W), dt), np.zeros((B, H, W) if shade else (0, 0, 0), dt),
-               np.zeros((B, H, W, 2) if shade else (0, 0, 0, 0), dt), np.zeros((B, H, W) if plan.second else (0, 0, 0), dt))
+        out = tuple(np.zeros(shape, zs_np.dtype) for shape in plan.out_shapes)
         cap = plan.capacity
         cap2 = cap if plan.second else 0
         elems = (np.empty(cap, np.int32), np.empty(cap, np.int32), np.empty(cap, gpar.dtype), np.empty(cap, gpar.dtype),
@@ -207,7 +210,7 @@ class _FusedComposite(torch.autograd.Function):
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
         visible_t = torch.from_numpy(visible)
         ctx.mark_non_differentiable(visible_t)
-        ctx.set_materialize_grads(False)  # outputs the loss does not reach: None (zeros here, as float64)
+        ctx.set_materialize_grads(False)  # outputs the loss does not reach: None (zeros in backward)
         return (*(torch.from_numpy(o) for o in out), visible_t)
 
     @staticmethod
@@ -216,8 +219,8 @@ class _FusedComposite(torch.autograd.Function):
 
         plan = ctx.plan
         B, H, W = plan.shape
-        g = tuple(np.zeros(shape) if t is None else t.detach().to(torch.float64).contiguous().numpy()
-                  for t, shape in zip((g_l, g_z, g_d, g_2), ((B, H, W), (B, H, W), (B, H, W, 2), (B, H, W))))
+        g = tuple(np.zeros(shape) if t is None or shape[0] == 0 else t.detach().to(torch.float64).contiguous().numpy()
+                  for t, shape in zip((g_l, g_z, g_d, g_2), plan.out_shapes))  # float64, as the kernel reads them
         acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))  # composite_backward writes every entry
         grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
         with _LOCK:
