@@ -4,7 +4,9 @@ For 2k / 4k / 10k strands x 32 points at 256x256 and 512x512 it prints a Markdow
 forward and forward+backward milliseconds per frame, the number of (Gaussian, pixel)
 contributions T the renderer evaluates, and the same machine's time for a plain ``scatter_add_``
 of T values into an image of that size (the bandwidth ceiling; the indices are the renderer's own
-pixel indices, so the memory access pattern is the same).
+pixel indices, so the memory access pattern is the same). On the CPU torch runs this 1-D
+scatter-add on one thread whatever ``--threads`` says (the same time at 1 and 2 threads, measured):
+the ceiling is a single-core figure.
 
 Usage:
     python benchmarks/render_bench.py [--quick] [--breakdown] [--device cpu|cuda] [--threads N] [--frames B]
