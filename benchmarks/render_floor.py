@@ -1,0 +1,110 @@
+"""What is left of a numba-backend render when the compositing itself costs nothing: the floor.
+
+Times forward+backward of ``render_bench.py``'s scene (silhouette + normalised depth + direction,
+best of ``--repeat``) three ways, alternating, in one process:
+
+- ``full``: the renderer as it is;
+- ``walk``: the two compositing kernels replaced by the window walk alone (every (Gaussian,
+  pixel) contribution listed with its power, without z_ref) and alpha and log(1 - alpha) of each,
+  the least any compositing model over these windows must do, and a backward pass that returns
+  zero gradients of the Gaussians;
+- ``none``: both compositing kernels replaced by no-ops (projection, windows, tile binning,
+  gradient sums, the projection's backward, torch's image channels and loss, Python: what any
+  compositing model pays besides its own work).
+
+The images of the stubbed runs are wrong (zeros); only their times mean anything. Against the
+``scatter_add_`` ceiling of the same scene (``render_bench.py``), this says how much time a
+compositing model may take at most to stay within a given multiple of the ceiling.
+
+    .venv/bin/python benchmarks/render_floor.py [--strands 4000] [--size 256] [--repeat 15] [--rounds 3]
+"""
+
+from __future__ import annotations
+
+import vid2haircut  # noqa: F401  (before torch: its OpenMP spin setting applies only then, as in the CLI)
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+from numba import njit, prange
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from render_bench import best_ms, setup  # noqa: E402  (the benchmark scene and its timer)
+
+from vid2haircut.render import numba_kernels  # noqa: E402
+from vid2haircut.render.numba_lines import load_head, walk_lines  # noqa: E402
+from vid2haircut.render.numba_walk import C_AMAX, C_AMIN, alpha_and_l, tile_box  # noqa: E402
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def walk_only(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g, work_start, work_tiles,
+              width, height, tile, offsets, elems, e_range, out, vis_weight, visible, compress):
+    """``numba_kernels.composite_forward``'s signature; only the walk and alpha / l of every tile."""
+    e_p, e_al, e_la = elems[0], elems[2], elems[3]
+    L = tile
+    for wk in prange(work_start.shape[0] - 1):
+        hl, zref2 = np.empty(2 * L * L, zs.dtype), np.empty(2 * L * L, zs.dtype)
+        lane, pw, hf = np.empty((3, L), zs.dtype), np.empty(L, zs.dtype), np.empty(L, zs.dtype)
+        vlo, vhi, km, pix = np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32)
+        for j in range(work_start[wk], work_start[wk + 1]):
+            t = work_tiles[j]
+            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            load_head(head, has_head, b, x0, y0, width, height, L, hl)
+            off = offsets[t]
+            n = walk_lines(tile_start[t], tile_start[t + 1], sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1,
+                           y0, y1, L, zref2, False, lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range,
+                           compress)
+            alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
+
+
+def _no_forward(*args) -> None:
+    args[17][:] = 0  # e_range: no elements (the backward stub reads nothing)
+
+
+def _no_backward(*args) -> None:
+    args[-1].fill(0.0)  # the per-instance gradient sums
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--strands", type=int, default=4000)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--repeat", type=int, default=15, help="timed runs per variant and round (the best counts)")
+    ap.add_argument("--rounds", type=int, default=3, help="rounds of the three variants, alternating")
+    ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (the kernels follow it)")
+    args = ap.parse_args(argv)
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    from vid2haircut.render import render_strands
+
+    pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
+    pts.requires_grad_(True)
+
+    def call():
+        out = render_strands(pts, K, E, args.size, args.size, head_depth=hd, backend="numba")
+        (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
+        pts.grad = None
+
+    real = numba_kernels.composite_forward, numba_kernels.composite_backward
+    variants = {"full": real, "walk": (walk_only, _no_backward), "none": (_no_forward, _no_backward)}
+    print(f"{args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads; "
+          f"forward+backward ms, best of {args.repeat}\n")
+    print("| round | " + " | ".join(variants) + " |")
+    print("|---|" + "---|" * len(variants))
+    try:
+        for r in range(args.rounds):
+            row = []
+            for fwd, bwd in variants.values():
+                numba_kernels.composite_forward, numba_kernels.composite_backward = fwd, bwd
+                row.append(best_ms(call, "cpu", args.repeat))
+            print(f"| {r + 1} | " + " | ".join(f"{t:.1f}" for t in row) + " |", flush=True)
+    finally:
+        numba_kernels.composite_forward, numba_kernels.composite_backward = real
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
