@@ -43,3 +43,46 @@ def test_render_kernels_benchmark_times_every_kernel(capsys):
         for name in names:
             assert f"| {name} |" in out
     assert numba_kernels.composite_forward is before
+
+
+def test_render_floor_walk_lists_the_renderers_elements(capsys):
+    """benchmarks/render_floor.py's walk-only kernel does the real forward kernel's window walk (the
+    same elements, powers turned into the same d l / d power and l), so its time is the walk's; the
+    benchmark runs on a small scene and puts the kernels back."""
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    try:
+        import render_floor
+        from render_bench import setup
+    finally:
+        sys.path.pop(0)
+    import numpy as np
+
+    from vid2haircut.render import numba_backend, numba_kernels, render_strands
+
+    if not numba_backend.numba_available():
+        pytest.skip("needs numba")
+    real = numba_kernels.composite_forward
+    seen = []
+
+    def both(*args):
+        real(*args)
+        elems, e_range = args[16], args[17]
+        copies = tuple(np.zeros_like(a) for a in elems), np.zeros_like(e_range)
+        render_floor.walk_only(*args[:16], *copies, *args[18:])
+        seen.append((elems, e_range) + copies)
+
+    numba_kernels.composite_forward = both
+    try:
+        pts, K, E, hd = setup(200, 64, 1, "cpu")
+        render_strands(pts, K, E, 64, 64, head_depth=hd, backend="numba")
+    finally:
+        numba_kernels.composite_forward = real
+    (elems, e_range, elems_w, e_range_w), = seen
+    assert np.array_equal(e_range, e_range_w) and int((e_range[:, 1] - e_range[:, 0]).sum()) > 1000
+    for k0, k1 in e_range:
+        for col in (0, 2, 3):  # pixel, d l / d power, l
+            assert np.array_equal(elems[col][k0:k1], elems_w[col][k0:k1])
+    assert render_floor.main(["--strands", "100", "--size", "64", "--repeat", "1", "--rounds", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "| full | walk | none |" in out and out.strip().splitlines()[-1].startswith("| 1 |")
+    assert numba_kernels.composite_forward is real
