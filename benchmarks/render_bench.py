@@ -92,6 +92,14 @@ def best_ms(fn, device: str, repeat: int) -> float:
     return best * 1e3
 
 
+def forward_backward(pts, K, E, hd, size: int, backend: str = "auto") -> None:
+    """One forward+backward of a scene from :func:`setup` (``pts`` requiring gradients), with the
+    benchmark's loss: silhouette + normalised depth + direction, each summed."""
+    out = render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
+    (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
+    pts.grad = None
+
+
 def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto") -> dict:
     pts, K, E, hd = setup(n_strands, size, frames, device)
     pts.requires_grad_(True)
@@ -101,10 +109,7 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
             render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
 
     def fwd_bwd():
-        out = render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
-        loss = out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()
-        loss.backward()
-        pts.grad = None
+        forward_backward(pts, K, E, hd, size, backend)
 
     with torch.no_grad():
         g = segment_gaussians(pts, K, E)

@@ -27,37 +27,25 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 from numba import njit, prange
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_bench import best_ms, setup  # noqa: E402  (the benchmark scene and its timer)
+from render_bench import best_ms, forward_backward, setup  # noqa: E402  (the scene, its loss, the timer)
 
 from vid2haircut.render import numba_kernels  # noqa: E402
-from vid2haircut.render.numba_lines import load_head, walk_lines  # noqa: E402
-from vid2haircut.render.numba_walk import C_AMAX, C_AMIN, alpha_and_l, tile_box  # noqa: E402
+from vid2haircut.render.numba_kernels import walk_scratch, walk_tile  # noqa: E402
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
 def walk_only(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g, work_start, work_tiles,
               width, height, tile, offsets, elems, e_range, out, vis_weight, visible, compress):
-    """``numba_kernels.composite_forward``'s signature; only the walk and alpha / l of every tile."""
-    e_p, e_al, e_la = elems[0], elems[2], elems[3]
-    L = tile
+    """``numba_kernels.composite_forward``'s signature; only its step 1 (``walk_tile``, without z_ref)."""
     for wk in prange(work_start.shape[0] - 1):
-        hl, zref2 = np.empty(2 * L * L, zs.dtype), np.empty(2 * L * L, zs.dtype)
-        lane, pw, hf = np.empty((3, L), zs.dtype), np.empty(L, zs.dtype), np.empty(L, zs.dtype)
-        vlo, vhi, km, pix = np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32)
+        scratch = walk_scratch(tile, zs)
         for j in range(work_start[wk], work_start[wk + 1]):
-            t = work_tiles[j]
-            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
-            load_head(head, has_head, b, x0, y0, width, height, L, hl)
-            off = offsets[t]
-            n = walk_lines(tile_start[t], tile_start[t + 1], sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1,
-                           y0, y1, L, zref2, False, lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range,
-                           compress)
-            alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
+            walk_tile(work_tiles[j], scratch, gpar, zs, wint, wflt, head, has_head, consts, False, tile_start,
+                      sorted_g, width, height, tile, offsets, elems, e_range, compress)
 
 
 def _no_forward(*args) -> None:
@@ -78,15 +66,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    from vid2haircut.render import render_strands
-
     pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
     pts.requires_grad_(True)
 
     def call():
-        out = render_strands(pts, K, E, args.size, args.size, head_depth=hd, backend="numba")
-        (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
-        pts.grad = None
+        forward_backward(pts, K, E, hd, args.size, "numba")
 
     real = numba_kernels.composite_forward, numba_kernels.composite_backward
     variants = {"full": real, "walk": (walk_only, _no_backward), "none": (_no_forward, _no_backward)}

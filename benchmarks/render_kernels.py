@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_bench import setup  # noqa: E402  (the benchmark scene)
+from render_bench import forward_backward, setup  # noqa: E402  (the benchmark scene and its loss)
 
 KERNELS = {
     "numba_project": ("project_forward", "project_backward"),
@@ -62,15 +62,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
-    from vid2haircut.render import render_strands
-
     pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
     pts.requires_grad_(True)
 
     def call():
-        out = render_strands(pts, K, E, args.size, args.size, head_depth=hd, backend="numba")
-        (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
-        pts.grad = None
+        forward_backward(pts, K, E, hd, args.size, "numba")
 
     times: dict[str, float] = {}
     undo = timed_kernels(times)

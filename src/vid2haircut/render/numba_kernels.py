@@ -16,7 +16,8 @@ Per tile, forward (:func:`composite_forward`):
 
  1. one walk of the windows, line by line (:func:`.numba_lines.walk_lines`): z_ref over every
     window pixel, and the elements (ellipse pixels not hidden by the head) with their power; then
-    alpha, l and d l / d power in one vectorised loop (:func:`.numba_walk.alpha_and_l`);
+    alpha, l and d l / d power in one vectorised loop (:func:`.numba_walk.alpha_and_l`; both in
+    :func:`walk_tile`);
  2. bins and Lb(b, p) = sum of l per (bin, pixel);
  3. -M(b, p) = -exp(Lx) expm1(Lb) / Lb (:func:`vid2haircut.render.bins.weight_table`);
  4. w = -M l; per pixel sums of w z, w cos2a, w sin2a; the largest w of each instance, and the
@@ -59,6 +60,43 @@ def _pixel_xy(x0, x1, y0, y1):
     return px, py
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def walk_scratch(L, zs):
+    """Per-worker scratch of :func:`walk_tile` for tiles of L x L pixels (lane dtype: that of ``zs``):
+    (head depth and z_ref, each in two layouts [2 L L], lane terms [3, L], power and head factor
+    [L], window rows, kept lanes and their pixels [L] int32)."""
+    dt = zs.dtype
+    i32 = np.int32
+    return (np.empty(2 * L * L, dt), np.empty(2 * L * L, dt), np.empty((3, L), dt), np.empty(L, dt), np.empty(L, dt),
+            np.empty(L, i32), np.empty(L, i32), np.empty(L, i32), np.empty(L, i32))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, with_zref, tile_start, sorted_g, width, height,
+              tile, offsets, elems, e_range, compress):
+    """Step 1 of :func:`composite_forward` for tile ``t``: walk its windows (z_ref into ``scratch[1]``
+    when ``with_zref``), listing its elements at ``offsets[t]``, and turn their power into d l / d
+    power and l (and the second silhouette's, when ``consts`` has one).
+
+    Returns:
+        (frame, x0, x1, y0, y1 (the tile's inclusive pixel bounds), first element slot, element count).
+    """
+    hl, zref2, lane, pw, hf, vlo, vhi, km, pix = scratch
+    e_p, e_bin, e_al, e_la, e_dl2, e_la2 = elems
+    b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+    L = tile
+    load_head(head, has_head, b, x0, y0, width, height, L, hl)
+    off = offsets[t]
+    n = walk_lines(tile_start[t], tile_start[t + 1], sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L,
+                   zref2, with_zref, lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress)
+    if consts[C_RATIO] > 0.0:
+        alpha_and_l2(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX], consts[C_RATIO],
+                     e_dl2[off:off + n], e_la2[off:off + n])
+    else:
+        alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
+    return b, x0, x1, y0, y1, off, n
+
+
 @njit(**_PAR)
 def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g,
                       work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, vis_weight, visible,
@@ -92,27 +130,18 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
     second = consts[C_RATIO] > 0.0
     L = tile
     for wk in prange(work_start.shape[0] - 1):
-        hl, zref2 = np.empty(2 * L * L, zs.dtype), np.empty(2 * L * L, zs.dtype)
-        lane, pw, hf = np.empty((3, L), zs.dtype), np.empty(L, zs.dtype), np.empty(L, zs.dtype)
-        vlo, vhi, km, pix = np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32), np.empty(L, np.int32)
+        scratch = walk_scratch(L, zs)
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
-            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            b, x0, x1, y0, y1, off, n = walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, nbins > 1,
+                                                  tile_start, sorted_g, width, height, tile, offsets, elems, e_range,
+                                                  compress)
             tw = x1 - x0 + 1
             npx = tw * (y1 - y0 + 1)
             i0, i1 = tile_start[t], tile_start[t + 1]
-            load_head(head, has_head, b, x0, y0, width, height, L, hl)
-            off = offsets[t]
-            n = walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, nbins > 1,
-                           lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress)
-            if second:
-                alpha_and_l2(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX], consts[C_RATIO],
-                             e_dl2[off:off + n], e_la2[off:off + n])
-            else:
-                alpha_and_l(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX])
             zref = np.full(npx, np.inf, zs.dtype)
             if nbins > 1:
-                fold_zref(zref2, zref, x1, x0, y1, y0, L)
+                fold_zref(scratch[1], zref, x1, x0, y1, y0, L)
             Lb, nb = bin_sums(e_p, e_bin, e_la, e_range, i0, i1, sorted_g, zs, zref, nbins, npx)
             acc = np.zeros((5, npx))
             for bb in range(nb):  # sum of l, in bin order
