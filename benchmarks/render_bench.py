@@ -100,6 +100,23 @@ def forward_backward(pts, K, E, hd, size: int, backend: str = "auto") -> None:
     pts.grad = None
 
 
+def add_scene_args(ap: argparse.ArgumentParser) -> None:
+    """The scene options of the single-scene renderer benchmarks (render_kernels.py, render_floor.py)."""
+    ap.add_argument("--strands", type=int, default=4000)
+    ap.add_argument("--size", type=int, default=256)
+    ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (the kernels follow it)")
+
+
+def scene_call(args: argparse.Namespace):
+    """Apply ``--threads`` and build the scene of ``args`` (:func:`add_scene_args`); returns a
+    no-argument function doing one numba-backend :func:`forward_backward` of it."""
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
+    pts.requires_grad_(True)
+    return lambda: forward_backward(pts, K, E, hd, args.size, "numba")
+
+
 def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto") -> dict:
     pts, K, E, hd = setup(n_strands, size, frames, device)
     pts.requires_grad_(True)

@@ -31,7 +31,7 @@ import torch
 from numba import njit, prange
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_bench import best_ms, forward_backward, setup  # noqa: E402  (the scene, its loss, the timer)
+from render_bench import add_scene_args, best_ms, scene_call  # noqa: E402  (the scene, its loss, the timer)
 
 from vid2haircut.render import numba_kernels  # noqa: E402
 from vid2haircut.render.numba_kernels import walk_scratch, walk_tile  # noqa: E402
@@ -58,20 +58,11 @@ def _no_backward(*args) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--strands", type=int, default=4000)
-    ap.add_argument("--size", type=int, default=256)
+    add_scene_args(ap)
     ap.add_argument("--repeat", type=int, default=15, help="timed runs per variant and round (the best counts)")
     ap.add_argument("--rounds", type=int, default=3, help="rounds of the three variants, alternating")
-    ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (the kernels follow it)")
     args = ap.parse_args(argv)
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
-    pts.requires_grad_(True)
-
-    def call():
-        forward_backward(pts, K, E, hd, args.size, "numba")
-
+    call = scene_call(args)
     real = numba_kernels.composite_forward, numba_kernels.composite_backward
     variants = {"full": real, "walk": (walk_only, _no_backward), "none": (_no_forward, _no_backward)}
     print(f"{args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads; "

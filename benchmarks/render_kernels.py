@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_bench import forward_backward, setup  # noqa: E402  (the benchmark scene and its loss)
+from render_bench import add_scene_args, scene_call  # noqa: E402  (the benchmark scene and its loss)
 
 KERNELS = {
     "numba_project": ("project_forward", "project_backward"),
@@ -55,19 +55,10 @@ def timed_kernels(times: dict[str, float]) -> list:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--strands", type=int, default=4000)
-    ap.add_argument("--size", type=int, default=256)
+    add_scene_args(ap)
     ap.add_argument("--calls", type=int, default=20, help="timed forward+backward calls (after 3 warm-ups)")
-    ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (the kernels follow it)")
     args = ap.parse_args(argv)
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
-    pts.requires_grad_(True)
-
-    def call():
-        forward_backward(pts, K, E, hd, args.size, "numba")
-
+    call = scene_call(args)
     times: dict[str, float] = {}
     undo = timed_kernels(times)
     try:
