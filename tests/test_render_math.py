@@ -140,9 +140,9 @@ def test_window_start_is_the_float32_ceiling():
 
 
 def test_line16_lane_by_lane_fallback(tmp_path):
-    """Without LLVM's vector compress (LLVM < 19) line16 compiles to a lane-by-lane store sequence
-    that appends the same kept elements (run in a fresh process: the choice is made when the kernel
-    compiles)."""
+    """Without LLVM's vector compress (LLVM < 19) or AVX-512 (numba_simd.COMPILE_COMPRESS) line16
+    compiles to a lane-by-lane store sequence that appends the same kept elements, then zeros (run in
+    a fresh process: the choice is made when the kernel compiles)."""
     import os
     import subprocess
     import sys
@@ -173,6 +173,8 @@ kept = (p > f32(-4.5)) & (np.arange(16) != 3) & (np.arange(16) != 7)
 assert n == kept.sum() and np.array_equal(e_al[5:5 + n], p[kept]), (n, kept.sum())
 assert np.array_equal(e_p[5:5 + n], (3 + np.arange(16))[kept]) and np.all(e_la[5:5 + n] == 1)
 assert np.all(zref[np.arange(16) != 3] == f32(0.2)) and zref[3] == np.inf
+for out in (e_al, e_la, e_p):  # 16 slots from 5: the kept lanes, then zeros; nothing else touched
+    assert np.all(out[5 + n:21] == 0) and np.all(out[:5] == -9) and np.all(out[21:] == -9)
 print("ok", n)
 """
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))

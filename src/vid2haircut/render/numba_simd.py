@@ -15,8 +15,12 @@ code (no fast-math flags: no fused multiply-adds, the same comparisons and selec
 of 16 slots (two of 8 for float64): the kept lanes, then zeros. A compress straight to memory (``masked.compressstore``)
 would spare the zeros, but AMD Zen 4 runs that form as a microcoded sequence of ~100+ cycles
 (measured on this project's 2-core AMD EPYC: 30 ms more per 4k-strand forward than a scalar
-loop), while the register form is fast on Intel and AMD alike. Without AVX-512 LLVM expands the
-compress lane by lane, so the callers use a loop there (:data:`HAS_COMPRESS`).
+loop), while the register form is fast on Intel and AMD alike. Without AVX-512 the callers use a
+loop instead (:data:`HAS_COMPRESS`), and :func:`line16` itself compiles to a lane-by-lane store
+sequence with the same result: numba's LLVM (llvmlite 0.50) aborts the whole process with an
+assertion ("Cannot create FP integer constant") when it expands the compress of a float vector for
+an AVX2 target (measured on an AMD EPYC Zen 3), so the intrinsic is emitted only for CPUs with
+AVX-512F (:data:`COMPILE_COMPRESS`).
 """
 
 from __future__ import annotations
@@ -44,9 +48,13 @@ def _host_has_avx512() -> bool:
         return False
 
 
-HAS_COMPRESS = HAS_VECTOR_COMPRESS and _host_has_avx512()
-"""Whether :func:`line16`'s compaction compiles to AVX-512 compress instructions on this machine;
-the backend passes it to the kernels as a run-time flag (tests set it both ways)."""
+COMPILE_COMPRESS = HAS_VECTOR_COMPRESS and _host_has_avx512()
+"""Whether :func:`line16` emits LLVM's vector compress (one AVX-512 instruction on this machine);
+read when a kernel compiles, elsewhere :func:`line16` stores lane by lane."""
+HAS_COMPRESS = COMPILE_COMPRESS
+"""Whether the walk should append through :func:`line16` (fast with AVX-512 compress) rather than
+its loop; the backend passes it to the kernels as a run-time flag (tests set it both ways, which
+changes only the path taken, never the code compiled)."""
 
 
 def _kind(elt) -> tuple[str, int]:
@@ -68,13 +76,18 @@ def _compress_store(builder, vec, bits, ptr, off):
     ptr[off]; writes 16 slots from off on (the kept lanes, then zeros; 64-bit elements go as two
     halves of 8, one 512-bit register each, so their zeros reach off + (kept of the first half) + 8
     only). Returns off + the kept count (i64)."""
-    if not HAS_VECTOR_COMPRESS:  # each lane stored at the cursor, which only the kept lanes advance
-        # (the slots past the kept lanes then hold lane values, not zeros)
+    if not (HAS_VECTOR_COMPRESS and COMPILE_COMPRESS):
+        # 16 zeros, then each lane at the cursor (its value if kept, else 0), which only the kept
+        # lanes advance: the same slots as the compress below
+        zero = _ir.Constant(vec.type, None)
+        builder.store(zero, builder.bitcast(builder.gep(ptr, [off], inbounds=True), vec.type.as_pointer()), align=4)
         pos = off
         for i in range(LANES):
             lane = _ir.Constant(_I32, i)
-            builder.store(builder.extract_element(vec, lane), builder.gep(ptr, [pos], inbounds=True), align=4)
-            pos = builder.add(pos, builder.zext(builder.extract_element(bits, lane), _I64))
+            bit = builder.extract_element(bits, lane)
+            value = builder.select(bit, builder.extract_element(vec, lane), _ir.Constant(vec.type.element, None))
+            builder.store(value, builder.gep(ptr, [pos], inbounds=True), align=4)
+            pos = builder.add(pos, builder.zext(bit, _I64))
         return pos
     elt = vec.type.element
     kind, width = _kind(elt)
