@@ -132,13 +132,13 @@ def test_numba_backend_is_deterministic_for_any_thread_count():
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_walk_compaction_by_loop_equals_compress(dtype, monkeypatch):
-    """The window walk's two ways of appending the kept lanes (AVX-512 compress, or the loop used
-    on other CPUs) give identical renders and gradients."""
+    """The window walk's two ways of appending the kept lanes (numba_simd.line16 with this CPU's
+    compaction, or the numba loop) give identical renders and gradients."""
     from vid2haircut.render import numba_simd
 
     runs = []
     for compress in (False, True):
-        monkeypatch.setattr(numba_simd, "HAS_COMPRESS", compress)
+        monkeypatch.setattr(numba_simd, "USE_LINE16", compress)
         runs.append(_render_and_grad("numba", dtype))
     (a, ga), (b, gb) = runs
     _assert_same_render(a, b)

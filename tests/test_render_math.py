@@ -8,8 +8,8 @@ import pytest
 
 numba = pytest.importorskip("numba")
 
-from vid2haircut.render.numba_math import lane_exp, lane_log1m
-from vid2haircut.render.numba_simd import line16  # noqa: E402
+from vid2haircut.render import numba_simd  # noqa: E402
+from vid2haircut.render.numba_math import lane_exp, lane_log1m  # noqa: E402
 
 
 @numba.njit(cache=True)
@@ -46,25 +46,52 @@ def test_log1m_relative_error(dtype, tol):
     assert np.max(np.abs(out[nz] - ref[nz]) / np.abs(ref[nz])) < tol
 
 
-@numba.njit(cache=True)
-def _lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any,
-           prs, si, e_al, e_la, e_p):
-    n = 0
-    for j in range(rows.shape[0]):
-        n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
-                    np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
-                    np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
-    return n
+_LINES = {}
 
 
+def _lines_for(compaction):
+    """A numba loop calling line16 compiled with ``compaction`` once per row (built once each)."""
+    if compaction not in _LINES:
+        line16 = numba_simd.make_line16(compaction)
+
+        @numba.njit
+        def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
+                  keep_any, prs, si, e_al, e_la, e_p):
+            n = 0
+            for j in range(rows.shape[0]):
+                n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
+                            np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
+                            np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+            return n
+
+        _LINES[compaction] = lines
+    return _LINES[compaction]
+
+
+def test_compaction_choice():
+    """The compaction follows the CPU's features: AVX-512F compress (where numba's LLVM has it),
+    else AVX2 permutes, else lane by lane; the walk uses line16 unless only the lanes remain."""
+    assert numba_simd.available_compactions({"avx512f": True, "avx2": True})[0] == \
+        ("compress" if numba_simd.HAS_VECTOR_COMPRESS else "permute")
+    assert numba_simd.available_compactions({"avx512f": False, "avx2": True}) == ("permute", "lanes")
+    assert numba_simd.available_compactions({}) == ("lanes",)
+    assert numba_simd.COMPACTION == numba_simd.available_compactions()[0]
+    assert numba_simd.USE_LINE16 == (numba_simd.COMPACTION != "lanes")
+    with pytest.raises(ValueError, match="compaction"):
+        numba_simd.make_line16("gather")
+
+
+@pytest.mark.parametrize("compaction", numba_simd.available_compactions())
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("keep_any", [True, False])
-def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any):
-    """line16 against the walk's scalar formulas evaluated operation by operation in numpy (IEEE
-    rounding per operation, as the numba loop): the same z_ref update (none without it), the same
-    kept lanes, bit for bit the same power and head factor, the pixel indices; lines with every,
-    no and some lanes kept, the head in front (factor 0), level with (in between) and behind (1),
-    and +inf head depth."""
+def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compaction):
+    """line16, with each compaction this CPU can run, against the walk's scalar formulas evaluated
+    operation by operation in numpy (IEEE rounding per operation, as the numba loop): the same
+    z_ref update (none without it), the same kept lanes, bit for bit the same power and head
+    factor, the pixel indices, then zeros in the line's remaining slots; lines with every, no and
+    some lanes kept, the head in front (factor 0), level with (in between) and behind (1), and +inf
+    head depth."""
+    _lines = _lines_for(compaction)
     rng = np.random.default_rng(1)
     c = lambda x: np.asarray(x, dtype)  # noqa: E731
     J = 300
@@ -137,46 +164,3 @@ def test_window_start_is_the_float32_ceiling():
     for sl, u, v0 in zip(slopes, us, v0s):
         t = np.float32(np.float32(sl * np.float32(u)) + v0)
         assert vstart(sl, u, v0) == int(np.ceil(t)), (sl, u, v0)
-
-
-def test_line16_lane_by_lane_fallback(tmp_path):
-    """Without LLVM's vector compress (LLVM < 19) or AVX-512 (numba_simd.COMPILE_COMPRESS) line16
-    compiles to a lane-by-lane store sequence that appends the same kept elements, then zeros (run in
-    a fresh process: the choice is made when the kernel compiles)."""
-    import os
-    import subprocess
-    import sys
-
-    code = """
-import numpy as np, numba
-from vid2haircut.render import numba_simd
-numba_simd.HAS_VECTOR_COMPRESS = False
-
-@numba.njit
-def one(qa, qb, lo, hi, hl, zref, e_al, e_la, e_p):
-    return line16(qa, qb, lo, hi, hl, zref, True, np.float32(0.2), np.uint64(0), np.int32(2), np.float32(0.5),
-                  np.float32(1.0), np.float32(0.0), np.float32(0.5), np.float32(-4.5), np.float32(0.6),
-                  np.float32(1e4), True, np.int32(3), np.int32(1), e_al, e_la, e_p, np.uint64(5))
-
-line16 = numba_simd.line16
-f32 = np.float32
-qa, qb = np.linspace(0, 9, 16).astype(f32), np.zeros(16, f32)
-lo, hi = np.zeros(16, np.int32), np.full(16, 5, np.int32)
-lo[3] = 4  # lane 3 outside the window
-hl = np.full(16, np.inf, f32)
-hl[7] = 0.5  # head in front of lane 7
-zref = np.full(16, np.inf, f32)
-e_al, e_la, e_p = np.full(40, -9, f32), np.full(40, -9, f32), np.full(40, -9, np.int32)
-n = one(qa, qb, lo, hi, hl, zref, e_al, e_la, e_p)
-p = f32(0.0) - f32(0.5) * (qa + f32(0.5) * (qb + f32(1.0) * f32(0.5)))
-kept = (p > f32(-4.5)) & (np.arange(16) != 3) & (np.arange(16) != 7)
-assert n == kept.sum() and np.array_equal(e_al[5:5 + n], p[kept]), (n, kept.sum())
-assert np.array_equal(e_p[5:5 + n], (3 + np.arange(16))[kept]) and np.all(e_la[5:5 + n] == 1)
-assert np.all(zref[np.arange(16) != 3] == f32(0.2)) and zref[3] == np.inf
-for out in (e_al, e_la, e_p):  # 16 slots from 5: the kept lanes, then zeros; nothing else touched
-    assert np.all(out[5 + n:21] == 0) and np.all(out[:5] == -9) and np.all(out[21:] == -9)
-print("ok", n)
-"""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True)
-    assert out.returncode == 0 and out.stdout.startswith("ok"), out.stderr[-2000:]

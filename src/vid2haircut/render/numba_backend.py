@@ -206,7 +206,7 @@ class _FusedComposite(torch.autograd.Function):
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                  plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                  TILE, plan.offsets, elems, e_range, out, plan.vis_weight, visible,
-                                 numba_simd.HAS_COMPRESS and TILE == 16)  # numba_simd.line16: 16 lanes
+                                 numba_simd.USE_LINE16 and TILE == 16)  # numba_simd.line16: 16 lanes
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
         visible_t = torch.from_numpy(visible)
         ctx.mark_non_differentiable(visible_t)

@@ -5,10 +5,10 @@ A Gaussian's window runs along its major image axis u (x when ``horizontal``, el
 one pixel position v along the minor axis and all L pixels of the tile along u, evaluated as one
 vector of L lanes (lane i is u = u0 + i): the window test, z_ref and the power are computed for
 every lane, and the lanes inside the ellipse that the head does not hide are then appended to
-the tile's element list. Where the CPU has AVX-512 a line is one call of
-:func:`vid2haircut.render.numba_simd.line16` (explicit 16-lane vector code with compress
-instructions); elsewhere numba loops over the lanes and appends them with a branch-free loop
-from the first to the last kept one (the same elements). A thin strand Gaussian crosses a tile
+the tile's element list. Where the CPU has AVX-512 or AVX2 a line is one call of
+:func:`vid2haircut.render.numba_simd.line16` (explicit 16-lane vector code with compress or
+permute instructions); elsewhere numba loops over the lanes and appends them with a branch-free
+loop from the first to the last kept one (the same elements). A thin strand Gaussian crosses a tile
 in a few lines (its minor extent), so the walk costs a few vector operations per line instead
 of a loop of data-dependent length per pixel column, whose mispredicted exits were most of the
 earlier per-column walk's time (measured, one thread, 4k strands at 256 x 256, z_ref and the
@@ -111,8 +111,8 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     stores write up to 16 slots (the kept lanes, then zeros that the next line overwrites).
     ``lane`` [3, L], vlo / vhi / km / pix [L] int32, pw / hf [L] (lane dtype) are scratch (L = 16).
     ``compress``: evaluate each line with :func:`vid2haircut.render.numba_simd.line16` (explicit
-    16-lane vector code with AVX-512 compression; pass ``numba_simd.HAS_COMPRESS``) instead of
-    the loop over the lanes; the same elements either way.
+    16-lane vector code packing the kept lanes with AVX-512 compress or AVX2 permutes; pass
+    ``numba_simd.USE_LINE16``) instead of the loop over the lanes; the same elements either way.
     """
     tw = x1 - x0 + 1
     cut = lane_cast(math.log(consts[1]) - 1e-3, zs[0])  # power > cut: inside the ellipse
@@ -136,7 +136,7 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
             dv = lane_cast(r, mvr) - mvr
             base = np.uint64((lay * L + r) * L)
             pr = r * sr
-            if compress:  # AVX-512: the line as explicit 16-lane vector code, the same result as the loops
+            if compress:  # AVX-512 / AVX2: the line as explicit 16-lane vector code, the same result as the loops
                 n += line16(lane[L_QA], lane[L_QB], vlo, vhi, hl, zref2, with_zref, zg, base, rr, dv, qv, logop, half,
                             cut, z, big, keep_any, np.int32(pr), np.int32(si), e_al, e_la, e_p, np.uint64(n))
                 continue

@@ -10,17 +10,22 @@ code (no fast-math flags: no fused multiply-adds, the same comparisons and selec
 ``min`` / ``max``), so the elements it appends are bit for bit those of the loop
 (tests/test_render_math.py, tests/test_render_backends.py).
 
-:func:`line16` packs the kept lanes with LLVM's ``experimental.vector.compress`` (one AVX-512
-``vcompress`` into a register where the CPU has it) and stores them with one plain vector store
-of 16 slots (two of 8 for float64): the kept lanes, then zeros. A compress straight to memory (``masked.compressstore``)
-would spare the zeros, but AMD Zen 4 runs that form as a microcoded sequence of ~100+ cycles
-(measured on this project's 2-core AMD EPYC: 30 ms more per 4k-strand forward than a scalar
-loop), while the register form is fast on Intel and AMD alike. Without AVX-512 the callers use a
-loop instead (:data:`HAS_COMPRESS`), and :func:`line16` itself compiles to a lane-by-lane store
-sequence with the same result: numba's LLVM (llvmlite 0.50) aborts the whole process with an
-assertion ("Cannot create FP integer constant") when it expands the compress of a float vector for
-an AVX2 target (measured on an AMD EPYC Zen 3), so the intrinsic is emitted only for CPUs with
-AVX-512F (:data:`COMPILE_COMPRESS`).
+The kept lanes are packed to the front and stored with plain vector stores: 16 slots from the
+cursor hold the kept lanes, then zeros (that the next line overwrites). How they are packed
+depends on the CPU (:data:`COMPACTION`, chosen once per machine, when the kernels compile):
+
+- ``"compress"`` (AVX-512F): LLVM's ``experimental.vector.compress``, one ``vcompress`` into a
+  register. A compress straight to memory (``masked.compressstore``) would spare the zeros, but
+  AMD Zen 4 runs that form as a microcoded sequence of ~100+ cycles (measured on this project's
+  2-core AMD EPYC: 30 ms more per 4k-strand forward than a scalar loop), while the register form
+  is fast on Intel and AMD alike.
+- ``"permute"`` (AVX2, float32): per half of 8 lanes, one ``vpermps`` / ``vpermd`` with the lane
+  order looked up in a 256-entry table of the 8-bit mask (float64 lanes go lane by lane). LLVM's
+  compress cannot serve here: numba's LLVM (llvmlite 0.50) aborts the whole process with an
+  assertion ("Cannot create FP integer constant") when it expands the compress of a float vector
+  for an AVX2 target (found on an AMD EPYC Zen 3).
+- ``"lanes"`` (anything else): each lane stored at the cursor, which only the kept lanes advance;
+  the walk then takes its numba loop instead (:data:`USE_LINE16`).
 """
 
 from __future__ import annotations
@@ -35,26 +40,38 @@ LANES = 16
 _I64 = _ir.IntType(64)
 _I32 = _ir.IntType(32)
 HAS_VECTOR_COMPRESS = tuple(_llvm.llvm_version_info) >= (19,)
-"""Whether numba's LLVM has ``experimental.vector.compress`` (LLVM 19 on); older ones get a lane by
-lane store sequence instead, which the backend does not use (:data:`HAS_COMPRESS`)."""
+"""Whether numba's LLVM has ``experimental.vector.compress`` (LLVM 19 on)."""
 
 
-def _host_has_avx512() -> bool:
-    """True when the CPU numba compiles for has AVX-512F (vcompress: the compaction is one
-    instruction; elsewhere LLVM expands it lane by lane, and the callers use a loop instead)."""
+def _host_features() -> dict:
     try:
-        return bool(_llvm.get_host_cpu_features().get("avx512f", False))
-    except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable loop)
-        return False
+        return dict(_llvm.get_host_cpu_features())
+    except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable stores)
+        return {}
 
 
-COMPILE_COMPRESS = HAS_VECTOR_COMPRESS and _host_has_avx512()
-"""Whether :func:`line16` emits LLVM's vector compress (one AVX-512 instruction on this machine);
-read when a kernel compiles, elsewhere :func:`line16` stores lane by lane."""
-HAS_COMPRESS = COMPILE_COMPRESS
-"""Whether the walk should append through :func:`line16` (fast with AVX-512 compress) rather than
-its loop; the backend passes it to the kernels as a run-time flag (tests set it both ways, which
-changes only the path taken, never the code compiled)."""
+def available_compactions(features: dict | None = None) -> tuple[str, ...]:
+    """The compactions :func:`make_line16` can compile for this CPU (``features``: LLVM's host
+    CPU features, queried when None), fastest first; ``"lanes"`` always."""
+    f = _host_features() if features is None else features
+    out = []
+    if HAS_VECTOR_COMPRESS and f.get("avx512f", False):
+        out.append("compress")
+    if f.get("avx2", False):
+        out.append("permute")
+    return (*out, "lanes")
+
+
+COMPACTION = available_compactions()[0]
+"""How :func:`line16` packs the kept lanes on this machine: ``"compress"``, ``"permute"`` or
+``"lanes"`` (module docstring)."""
+USE_LINE16 = COMPACTION != "lanes"
+"""Whether the walk should append through :func:`line16` rather than its numba loop (the lane by
+lane stores are slower than that loop); the backend passes it to the kernels as a run-time flag
+(tests set it both ways, which changes only the path taken, never the code compiled)."""
+
+# for each 8-bit mask: the lanes whose bits are set, in lane order, then 0s (vpermps indices)
+_PERM_LUT = tuple(tuple([i for i in range(8) if m >> i & 1] + [0] * (8 - bin(m).count("1"))) for m in range(256))
 
 
 def _kind(elt) -> tuple[str, int]:
@@ -71,24 +88,58 @@ def _splat(builder, value, n: int = LANES):
     return builder.shuffle_vector(one, _ir.Constant(vt, _ir.Undefined), _ir.Constant(_ir.VectorType(_I32, n), None))
 
 
-def _compress_store(builder, vec, bits, ptr, off):
-    """Store the lanes of ``vec`` (<16 x T>) whose ``bits`` (<16 x i1>) are set, in lane order, at
-    ptr[off]; writes 16 slots from off on (the kept lanes, then zeros; 64-bit elements go as two
-    halves of 8, one 512-bit register each, so their zeros reach off + (kept of the first half) + 8
-    only). Returns off + the kept count (i64)."""
-    if not (HAS_VECTOR_COMPRESS and COMPILE_COMPRESS):
-        # 16 zeros, then each lane at the cursor (its value if kept, else 0), which only the kept
-        # lanes advance: the same slots as the compress below
-        zero = _ir.Constant(vec.type, None)
-        builder.store(zero, builder.bitcast(builder.gep(ptr, [off], inbounds=True), vec.type.as_pointer()), align=4)
-        pos = off
-        for i in range(LANES):
-            lane = _ir.Constant(_I32, i)
-            bit = builder.extract_element(bits, lane)
-            value = builder.select(bit, builder.extract_element(vec, lane), _ir.Constant(vec.type.element, None))
-            builder.store(value, builder.gep(ptr, [pos], inbounds=True), align=4)
-            pos = builder.add(pos, builder.zext(bit, _I64))
-        return pos
+def _lane_store(builder, vec, bits, ptr, off):
+    """The ``"lanes"`` compaction: 16 zeros, then each lane at the cursor (its value if kept, else
+    0), which only the kept lanes advance."""
+    zero = _ir.Constant(vec.type, None)
+    builder.store(zero, builder.bitcast(builder.gep(ptr, [off], inbounds=True), vec.type.as_pointer()), align=4)
+    pos = off
+    for i in range(LANES):
+        lane = _ir.Constant(_I32, i)
+        bit = builder.extract_element(bits, lane)
+        value = builder.select(bit, builder.extract_element(vec, lane), _ir.Constant(vec.type.element, None))
+        builder.store(value, builder.gep(ptr, [pos], inbounds=True), align=4)
+        pos = builder.add(pos, builder.zext(bit, _I64))
+    return pos
+
+
+def _permute_store(builder, vec, bits, ptr, off):
+    """The ``"permute"`` compaction (AVX2, 32-bit lanes): per half of 8 lanes, the kept ones moved
+    to the front by one vpermps / vpermd (the order from :data:`_PERM_LUT` at the 8-bit mask), the
+    rest zeroed, one store of 8 slots."""
+    module = builder.module
+    elt = vec.type.element
+    v8, i8x = _ir.VectorType(elt, 8), _ir.VectorType(_I32, 8)
+    lut = module.globals.get("vid2haircut_perm_lut")
+    if lut is None:
+        lut_ty = _ir.ArrayType(i8x, 256)
+        lut = _ir.GlobalVariable(module, lut_ty, "vid2haircut_perm_lut")
+        lut.linkage = "internal"
+        lut.global_constant = True
+        lut.align = 32
+        lut.initializer = _ir.Constant(lut_ty, [_ir.Constant(i8x, list(row)) for row in _PERM_LUT])
+    fname = "llvm.x86.avx2.permd" if isinstance(elt, _ir.IntType) else "llvm.x86.avx2.permps"
+    perm = cgutils.get_or_insert_function(module, _ir.FunctionType(v8, [v8, i8x]), fname)
+    ctpop = cgutils.get_or_insert_function(module, _ir.FunctionType(_I64, [_I64]), "llvm.ctpop.i64")
+    iota = _ir.Constant(i8x, list(range(8)))
+    pos = off
+    for part in range(2):
+        idx = _ir.Constant(i8x, [part * 8 + i for i in range(8)])
+        v = builder.shuffle_vector(vec, _ir.Constant(vec.type, _ir.Undefined), idx)
+        b = builder.shuffle_vector(bits, _ir.Constant(bits.type, _ir.Undefined), idx)
+        mask = builder.zext(builder.bitcast(b, _ir.IntType(8)), _I64)
+        order = builder.load(builder.gep(lut, [_ir.Constant(_I64, 0), mask], inbounds=True), align=32)
+        kept = builder.call(ctpop, [mask])
+        front = builder.icmp_unsigned("<", iota, _splat(builder, builder.trunc(kept, _I32), 8))
+        packed = builder.select(front, builder.call(perm, [v, order]), _ir.Constant(v8, None))
+        builder.store(packed, builder.bitcast(builder.gep(ptr, [pos], inbounds=True), v8.as_pointer()), align=4)
+        pos = builder.add(pos, kept)
+    return pos
+
+
+def _vector_compress_store(builder, vec, bits, ptr, off):
+    """The ``"compress"`` compaction (AVX-512): LLVM's vector compress into a register, one plain
+    store (64-bit lanes as two halves of 8, one 512-bit register each)."""
     elt = vec.type.element
     kind, width = _kind(elt)
     lanes = LANES if width <= 32 else LANES // 2
@@ -111,6 +162,18 @@ def _compress_store(builder, vec, bits, ptr, off):
     return pos
 
 
+def _compress_store(builder, vec, bits, ptr, off, compaction):
+    """Store the lanes of ``vec`` (<16 x T>) whose ``bits`` (<16 x i1>) are set, in lane order, at
+    ptr[off], by ``compaction`` (module docstring); writes at most 16 slots from off on (the kept
+    lanes, then zeros; halves of 8 reach off + (kept of the first half) + 8 only). Returns off +
+    the kept count (i64)."""
+    if compaction == "compress":
+        return _vector_compress_store(builder, vec, bits, ptr, off)
+    if compaction == "permute" and _kind(vec.type.element)[1] == 32:
+        return _permute_store(builder, vec, bits, ptr, off)
+    return _lane_store(builder, vec, bits, ptr, off)
+
+
 def _data(context, builder, aryty, ary):
     return context.make_array(aryty)(context, builder, ary).data
 
@@ -121,9 +184,21 @@ def _load16(builder, ptr, off=None):
     return builder.load(builder.bitcast(p, _ir.VectorType(ptr.type.pointee, LANES).as_pointer()), align=4)
 
 
-@intrinsic
-def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big, keep_any,
-           pr, si, e_al, e_la, e_p, n):
+def make_line16(compaction: str = COMPACTION):
+    """The :func:`line16` intrinsic compiled with ``compaction`` (one of
+    :func:`available_compactions`; tests build each)."""
+    if compaction not in ("compress", "permute", "lanes"):
+        raise ValueError(f"unknown compaction {compaction!r}")
+
+    @intrinsic
+    def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big,
+               keep_any, pr, si, e_al, e_la, e_p, n):
+        return _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p)
+
+    return line16
+
+
+def _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
     """One line of the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`) in 16 lanes:
     update z_ref, append the line's kept elements at e_*[n:] and return how many (int64).
 
@@ -134,7 +209,7 @@ def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, q
     ``keep_any``; its element is (pixel pr + i si (int32), p, f) into (e_p, e_al, e_la).
     qa / qb / hl / zref / e_al / e_la and the float scalars share one float dtype (float32 or
     float64); vlo / vhi / e_p are int32; base and n uint64. Writes at most 16 slots of each output
-    from n on (the kept lanes, then zeros).
+    from n on (the kept lanes, then zeros), packed by ``compaction``.
     """
     ft = qa.dtype
     sig = types.int64(qa, qb, vlo, vhi, hl, zref, types.boolean, ft, types.uint64, types.int32, ft, ft, ft, ft, ft, ft,
@@ -174,9 +249,14 @@ def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, q
         kept = builder.select(keep_v, kept, _ir.Constant(kept.type, None))
         iota = _ir.Constant(_ir.VectorType(_I32, LANES), list(range(LANES)))
         pix = builder.add(_splat(builder, pr_v), builder.mul(iota, _splat(builder, si_v)))
-        _compress_store(builder, p, kept, _data(context, builder, aty[20], al_v), n_v)
-        _compress_store(builder, f, kept, _data(context, builder, aty[21], la_v), n_v)
-        end = _compress_store(builder, pix, kept, _data(context, builder, aty[22], p_v), n_v)
+        _compress_store(builder, p, kept, _data(context, builder, aty[20], al_v), n_v, compaction)
+        _compress_store(builder, f, kept, _data(context, builder, aty[21], la_v), n_v, compaction)
+        end = _compress_store(builder, pix, kept, _data(context, builder, aty[22], p_v), n_v, compaction)
         return builder.sub(end, n_v)
 
     return sig, codegen
+
+
+line16 = make_line16()
+"""One line of the window walk in 16 lanes, compiled with this machine's :data:`COMPACTION`
+(:func:`_line16_typing` describes its arguments)."""
