@@ -69,12 +69,16 @@ def _lines_for(compaction):
 
 
 def test_compaction_choice():
-    """The compaction follows the CPU's features: AVX-512F compress (where numba's LLVM has it),
-    else AVX2 permutes, else lane by lane; the walk uses line16 unless only the lanes remain."""
+    """The compaction follows the features numba compiles for (NUMBA_CPU_FEATURES or the host's):
+    AVX-512F compress (where numba's LLVM has it), else AVX2 permutes, else lane by lane; the walk
+    uses line16 unless only the lanes remain."""
     assert numba_simd.available_compactions({"avx512f": True, "avx2": True})[0] == \
         ("compress" if numba_simd.HAS_VECTOR_COMPRESS else "permute")
     assert numba_simd.available_compactions({"avx512f": False, "avx2": True}) == ("permute", "lanes")
     assert numba_simd.available_compactions({}) == ("lanes",)
+    assert numba_simd.parse_features("+avx2,-avx512f,+fma") == {"avx2": True, "avx512f": False, "fma": True}
+    assert numba_simd.available_compactions(numba_simd.parse_features("+avx2,-avx512f"))[0] == "permute"
+    assert numba_simd.parse_features("") == {}
     assert numba_simd.COMPACTION == numba_simd.available_compactions()[0]
     assert numba_simd.USE_LINE16 == (numba_simd.COMPACTION != "lanes")
     with pytest.raises(ValueError, match="compaction"):

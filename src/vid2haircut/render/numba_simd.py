@@ -43,16 +43,26 @@ HAS_VECTOR_COMPRESS = tuple(_llvm.llvm_version_info) >= (19,)
 """Whether numba's LLVM has ``experimental.vector.compress`` (LLVM 19 on)."""
 
 
-def _host_features() -> dict:
+def parse_features(flat: str) -> dict[str, bool]:
+    """LLVM's feature string ("+avx2,-avx512f,...") as {feature: enabled}."""
+    return {f[1:]: f[0] == "+" for f in flat.split(",") if len(f) > 1 and f[0] in "+-"}
+
+
+def _host_features() -> dict[str, bool]:
+    """The CPU features numba compiles for: ``NUMBA_CPU_FEATURES`` when set, else the host's (with
+    ``NUMBA_ENABLE_AVX=0`` honoured), as numba's code generator takes them."""
     try:
-        return dict(_llvm.get_host_cpu_features())
+        from numba.core import codegen, config
+
+        flat = config.CPU_FEATURES if config.CPU_FEATURES is not None else codegen.get_host_cpu_features()
+        return parse_features(flat)
     except Exception:  # noqa: BLE001 (any failure of the feature query: take the portable stores)
         return {}
 
 
 def available_compactions(features: dict | None = None) -> tuple[str, ...]:
-    """The compactions :func:`make_line16` can compile for this CPU (``features``: LLVM's host
-    CPU features, queried when None), fastest first; ``"lanes"`` always."""
+    """The compactions :func:`make_line16` can compile for this CPU (``features``: the CPU features
+    numba compiles for, queried when None), fastest first; ``"lanes"`` always."""
     f = _host_features() if features is None else features
     out = []
     if HAS_VECTOR_COMPRESS and f.get("avx512f", False):
