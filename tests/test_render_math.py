@@ -3,6 +3,8 @@ code (render/numba_simd.py: one line of the window walk, its compaction included
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -46,26 +48,22 @@ def test_log1m_relative_error(dtype, tol):
     assert np.max(np.abs(out[nz] - ref[nz]) / np.abs(ref[nz])) < tol
 
 
-_LINES = {}
-
-
+@functools.cache
 def _lines_for(compaction):
     """A numba loop calling line16 compiled with ``compaction`` once per row (built once each)."""
-    if compaction not in _LINES:
-        line16 = numba_simd.make_line16(compaction)
+    line16 = numba_simd.make_line16(compaction)
 
-        @numba.njit
-        def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
-                  keep_any, prs, si, e_al, e_la, e_p):
-            n = 0
-            for j in range(rows.shape[0]):
-                n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
-                            np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
-                            np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
-            return n
+    @numba.njit
+    def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
+              keep_any, prs, si, e_al, e_la, e_p):
+        n = 0
+        for j in range(rows.shape[0]):
+            n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
+                        np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
+                        np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+        return n
 
-        _LINES[compaction] = lines
-    return _LINES[compaction]
+    return lines
 
 
 def test_compaction_choice():

@@ -43,6 +43,10 @@ HAS_VECTOR_COMPRESS = tuple(_llvm.llvm_version_info) >= (19,)
 """Whether numba's LLVM has ``experimental.vector.compress`` (LLVM 19 on)."""
 
 
+COMPACTIONS = ("compress", "permute", "lanes")
+"""The ways :func:`line16` can pack the kept lanes (module docstring), fastest first."""
+
+
 def parse_features(flat: str) -> dict[str, bool]:
     """LLVM's feature string ("+avx2,-avx512f,...") as {feature: enabled}."""
     return {f[1:]: f[0] == "+" for f in flat.split(",") if len(f) > 1 and f[0] in "+-"}
@@ -64,12 +68,9 @@ def available_compactions(features: dict | None = None) -> tuple[str, ...]:
     """The compactions :func:`make_line16` can compile for this CPU (``features``: the CPU features
     numba compiles for, queried when None), fastest first; ``"lanes"`` always."""
     f = _host_features() if features is None else features
-    out = []
-    if HAS_VECTOR_COMPRESS and f.get("avx512f", False):
-        out.append("compress")
-    if f.get("avx2", False):
-        out.append("permute")
-    return (*out, "lanes")
+    runs = {"compress": HAS_VECTOR_COMPRESS and f.get("avx512f", False), "permute": f.get("avx2", False),
+            "lanes": True}
+    return tuple(c for c in COMPACTIONS if runs[c])
 
 
 COMPACTION = available_compactions()[0]
@@ -197,7 +198,7 @@ def _load16(builder, ptr, off=None):
 def make_line16(compaction: str = COMPACTION):
     """The :func:`line16` intrinsic compiled with ``compaction`` (one of
     :func:`available_compactions`; tests build each)."""
-    if compaction not in ("compress", "permute", "lanes"):
+    if compaction not in COMPACTIONS:
         raise ValueError(f"unknown compaction {compaction!r}")
 
     @intrinsic
