@@ -25,6 +25,7 @@ from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, sa
 from vid2haircut.fit.stage1 import FitResult, fit_stage1, initial_hairmap, prior_view_input
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2
 from vid2haircut.io.strand_formats import save_strands
+from vid2haircut.machine import machine_info
 from vid2haircut.prior.codec import StrandCodec
 
 __all__ = ["run_stage1", "run_stage2", "stage1_config", "stage2_config"]
@@ -117,8 +118,8 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
               "fit_size": [data.width, data.height], "n_guides": int(res.texel_index.numel()),
               "prior": str(prior_dir) if prior_dir is not None else None,
               "codec_fingerprint": codec.fingerprint(), "fit_seconds": res.seconds,
-              "total_seconds": time.perf_counter() - t0, "final_terms": _final_terms(res),
-              "history": res.history.to_dict()}
+              "total_seconds": time.perf_counter() - t0, "machine": machine_info(cfg.device),
+              "final_terms": _final_terms(res), "history": res.history.to_dict()}
     write_record(out / "stage1.json", record)
     return record
 
@@ -191,7 +192,7 @@ def run_stage2(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
               "codec_fingerprint": codec.fingerprint(), "signature": sig,
               "resumed_from_step": None if state is None else int(state["step"]),
               "fit_seconds": res.seconds, "total_seconds": time.perf_counter() - t0,
-              "observed_texels": int(res.extra["observed"].sum()), "final_terms": _final_terms(res),
-              "history": res.history.to_dict()}
+              "machine": machine_info(cfg.device), "observed_texels": int(res.extra["observed"].sum()),
+              "final_terms": _final_terms(res), "history": res.history.to_dict()}
     write_record(out / "stage2.json", record)
     return record
