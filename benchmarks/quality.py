@@ -289,6 +289,15 @@ def _merge(a: dict, b: dict) -> dict:
     return out
 
 
+def _machine_line() -> str:
+    """The CPU and the kernel sets that decide the scores' last bits (:mod:`vid2haircut.machine`)."""
+    from vid2haircut.machine import machine_info
+
+    m = machine_info()
+    return (f"{m['cpu']}, {m['torch_threads']} torch threads, torch kernels {m['torch_cpu_capability']}, "
+            f"numba target {m['numba_cpu']}")
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)  # see forwarded
     p.add_argument("--work", default="results/benchmarks/quality", help="cache / work folder")
@@ -378,7 +387,7 @@ def main(argv: list[str] | None = None) -> int:
             f"Median tip height of the strands rooted in each region above the ground truth's, cm (mean over "
             f"the sequences; positive = the hair ends too high, i.e. is too short):\n\n"
             f"{tip_table(results, names, variants)}\n\n"
-            f"Mean fit time per variant (this machine): {timing}\n")
+            f"Mean fit time per variant (this machine: {_machine_line()}): {timing}\n")
     losses = loss_table(work, names, variants)
     if losses:
         text += "\n" + losses + "\n"
