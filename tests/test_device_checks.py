@@ -1,27 +1,18 @@
 """The accelerator check scripts (benchmarks/device_check.sh) run on the CPU too, so they cannot rot
 between the sessions that are lent a GPU."""
 
-import importlib
 import math
 import sys
 from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _benchmark(name: str):
-    """Import ``benchmarks/<name>.py`` as a module."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        return importlib.import_module(name)
-    finally:
-        sys.path.pop(0)
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_loader import load_benchmark  # noqa: E402
 
 
 def test_fit_device_check_small_problem_on_cpu():
-    fit_device_check = _benchmark("fit_device_check")
+    fit_device_check = load_benchmark("fit_device_check")
     res = fit_device_check.run_small("cpu")
     assert res["invisible_points"] > 0
     assert res["invisible_grad_max"] == 0.0
@@ -33,7 +24,7 @@ def test_fit_device_check_small_problem_on_cpu():
 def test_render_kernels_benchmark_times_every_kernel(capsys):
     """benchmarks/render_kernels.py (the README's renderer breakdown) runs on a small scene, times
     every kernel it names and puts the kernels back afterwards."""
-    render_kernels = _benchmark("render_kernels")
+    render_kernels = load_benchmark("render_kernels")
     from vid2haircut.render import numba_backend, numba_kernels
 
     if not numba_backend.numba_available():
@@ -51,8 +42,8 @@ def test_render_floor_walk_lists_the_renderers_elements(capsys):
     """benchmarks/render_floor.py's walk-only kernel does the real forward kernel's window walk (the
     same elements, powers turned into the same d l / d power and l), so its time is the walk's; the
     benchmark runs on a small scene and puts the kernels back."""
-    render_floor = _benchmark("render_floor")
-    setup = _benchmark("render_bench").setup
+    render_floor = load_benchmark("render_floor")
+    setup = load_benchmark("render_bench").setup
     import numpy as np
 
     from vid2haircut.render import numba_backend, numba_kernels, render_strands

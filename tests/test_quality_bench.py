@@ -8,25 +8,18 @@ import numpy as np
 from scipy.spatial import cKDTree
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-
-
-def _bench(name: str):
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        return __import__(name)
-    finally:
-        sys.path.pop(0)
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_loader import load_benchmark  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def quality():
-    return _bench("quality")
+    return load_benchmark("quality")
 
 
 @pytest.fixture(scope="module")
 def quality_report():
-    return _bench("quality_report")
+    return load_benchmark("quality_report")
 
 
 def _record(path: Path, sil: float, direc: float, depth: float, total: float) -> None:
@@ -129,7 +122,7 @@ def test_cached_sequences_of_another_capture_are_refused(quality, tmp_path):
 
 
 def test_gap_profile_parts_add_up_and_find_the_tips():
-    gap = _bench("gap_profile")
+    gap = load_benchmark("gap_profile")
     s = 3
     t = np.linspace(0.0, 1.0, gap.N_POINTS)
     gt = np.concatenate([np.stack([np.full_like(t, 0.01 * k), -0.2 * t, np.zeros_like(t)], 1) for k in range(s)])
@@ -145,7 +138,7 @@ def test_gap_profile_parts_add_up_and_find_the_tips():
 
 
 def test_gap_profile_shell_split_finds_hair_that_lies_too_flat():
-    gap = _bench("gap_profile")
+    gap = load_benchmark("gap_profile")
     rng = np.random.default_rng(0)
     # ground truth: points on a sphere of radius 10 cm around the head centre, all heights and azimuths
     d = rng.normal(size=(4000, 3))
@@ -162,7 +155,7 @@ def test_gap_profile_shell_split_finds_hair_that_lies_too_flat():
 
 
 def test_gap_profile_standoff_sees_a_flat_back():
-    gap = _bench("gap_profile")
+    gap = load_benchmark("gap_profile")
     rng = np.random.default_rng(1)
     d = rng.normal(size=(20000, 3))
     gt = 0.10 * d / np.linalg.norm(d, axis=1, keepdims=True)       # head surface at 9 cm: 10 mm off it
@@ -179,7 +172,7 @@ def test_gap_profile_standoff_sees_a_flat_back():
 def test_gap_profile_length_errors_match_strands_by_uv_and_region():
     from vid2haircut.strands import StrandSet
 
-    gap = _bench("gap_profile")
+    gap = load_benchmark("gap_profile")
     t = np.linspace(0.0, 1.0, 10)[:, None]
     down = np.array([0.0, -1.0, 0.0])
 
@@ -198,7 +191,7 @@ def test_gap_profile_length_errors_match_strands_by_uv_and_region():
 def test_gap_profile_projects_tips_into_the_reference_view():
     from vid2haircut.camera import Camera
 
-    gap = _bench("gap_profile")
+    gap = load_benchmark("gap_profile")
     K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 50.0], [0.0, 0.0, 1.0]])
     cam = Camera(K=K, world_2_cam=np.eye(4), width=100, height=100)
     pose = np.eye(4)
@@ -222,7 +215,7 @@ def test_redecode_writes_what_the_stage_wrote(tmp_path):
     from vid2haircut.fit.toy import toy_problem, write_toy_files
     from vid2haircut.io.strand_formats import load_strands
 
-    redecode = _bench("redecode")
+    redecode = load_benchmark("redecode")
     name = "toy_1000"
     work = tmp_path / "work"
     files = write_toy_files(toy_problem(size=40, n_frames=3, map_res=12, k=12), work / "data", subject=name)
@@ -250,14 +243,14 @@ def test_redecode_writes_what_the_stage_wrote(tmp_path):
     assert not (tmp_path / "off" / "runs" / name / "stage1").exists()
     sweep = work / "sweep" / name / "back"
     sweep.mkdir(parents=True)
-    for f in _bench("stage2_sweep").KEEP:
+    for f in load_benchmark("stage2_sweep").KEEP:
         shutil.copy2(s2 / f, sweep / f)
-    path = _bench("stage2_sweep").decoded(work, name, "back")
+    path = load_benchmark("stage2_sweep").decoded(work, name, "back")
     assert np.array_equal(load_strands(path).points, load_strands(s2 / "strands.npz").points)
 
 
 def test_length_spread_standoff_deviation_is_per_texel():
-    spread = _bench("length_spread")
+    spread = load_benchmark("length_spread")
     # two styles' strands in the same texel, and one texel of style 0 elsewhere: depth at 3 points
     uv = np.array([[0.01, 0.01]] * 4 + [[0.5, 0.5]] * 3)
     style = np.array([0, 0, 0, 1, 0, 0, 0])
@@ -309,7 +302,7 @@ def test_mix_components_takes_coarse_and_fine_components_from_two_runs(tmp_path)
 
     from vid2haircut.fit.outputs import load_hairmap, write_hairmap
 
-    mixer = _bench("mix_components")
+    mixer = load_benchmark("mix_components")
     gen = torch.Generator().manual_seed(0)
     mask = (torch.rand(6, 6, generator=gen) > 0.3).float()
     runs = {}

@@ -10,6 +10,9 @@ import pytest
 
 from vid2haircut.workflow_support import select_sequences
 
+sys.path.insert(0, str(Path(__file__).parent))
+from bench_loader import load_benchmark  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 
 
@@ -103,11 +106,7 @@ def test_select_sequences(tmp_path):
 
 def test_stage_times_reads_the_benchmark_files(workflow_run):
     """benchmarks/stage_times.py turns the run's Snakemake benchmark files into the README table."""
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        import stage_times
-    finally:
-        sys.path.pop(0)
+    stage_times = load_benchmark("stage_times")
     rows = stage_times.collect(workflow_run / "benchmarks" / "rules", "synth_t000")
     rules = {rule for rule, _, _ in rows}
     assert {"synthesize", "stage1", "stage2", "evaluate"} <= rules
