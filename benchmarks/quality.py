@@ -289,15 +289,6 @@ def _merge(a: dict, b: dict) -> dict:
     return out
 
 
-def _machine_line() -> str:
-    """The CPU and the kernel sets that decide the scores' last bits (:mod:`vid2haircut.machine`)."""
-    from vid2haircut.machine import machine_info
-
-    m = machine_info()
-    return (f"{m['cpu']}, {m['torch_threads']} torch threads, torch kernels {m['torch_cpu_capability']}, "
-            f"numba target {m['numba_cpu']}")
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0], allow_abbrev=False)  # see forwarded
     p.add_argument("--work", default="results/benchmarks/quality", help="cache / work folder")
@@ -332,12 +323,13 @@ def main(argv: list[str] | None = None) -> int:
                         "below it)")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
-    import vid2haircut  # noqa: F401  (before torch, as in the CLI: see the package docstring)
+    import vid2haircut  # before torch, as in the CLI: see the package docstring
     import torch
+
+    from vid2haircut.machine import machine_summary
 
     if args.threads:
         torch.set_num_threads(args.threads)
-    import vid2haircut
 
     prior_dir = Path(args.prior_dir) if args.prior_dir else Path(vid2haircut.__file__).parent / "data/prior/default"
     work = Path(args.work)
@@ -387,7 +379,7 @@ def main(argv: list[str] | None = None) -> int:
             f"Median tip height of the strands rooted in each region above the ground truth's, cm (mean over "
             f"the sequences; positive = the hair ends too high, i.e. is too short):\n\n"
             f"{tip_table(results, names, variants)}\n\n"
-            f"Mean fit time per variant (this machine: {_machine_line()}): {timing}\n")
+            f"Mean fit time per variant (this machine: {machine_summary()}): {timing}\n")
     losses = loss_table(work, names, variants)
     if losses:
         text += "\n" + losses + "\n"

@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from vid2haircut.camera import intrinsics_from_fov, look_at
-from vid2haircut.machine import machine_info
+from vid2haircut.machine import machine_info, machine_summary
 from vid2haircut.render import render_strands
 from vid2haircut.render.api import DEFAULT_ALPHA_MIN
 from vid2haircut.render.footprint import build_footprint
@@ -193,11 +193,8 @@ def main(argv=None) -> int:
         torch.set_num_threads(args.threads)
     cases = [(4000, 256)] if args.quick else [(n, s) for s in (256, 512) for n in (2000, 4000, 10000)]
     repeat = args.repeat
-    dev_name = torch.cuda.get_device_name() if args.device.startswith("cuda") else f"CPU, {torch.get_num_threads()} threads"
     backend = resolve_backend(args.backend, torch.zeros(1, device=args.device))
-    m = machine_info(args.device)
-    print(f"device: {dev_name}; CPU: {m['cpu']} (torch kernels {m['torch_cpu_capability']}, numba target "
-          f"{m['numba_cpu']}, walk compaction {m['render_compaction']}); torch {torch.__version__}; "
+    print(f"device: {args.device}; {machine_summary(machine_info(args.device))}; "
           f"backend: {backend}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
           f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")

@@ -4,7 +4,7 @@ import json
 
 import torch
 
-from vid2haircut.machine import cpu_model, machine_info
+from vid2haircut.machine import cpu_model, machine_info, machine_summary
 from vid2haircut.render import numba_simd
 
 
@@ -28,3 +28,12 @@ def test_machine_info_names_what_decides_the_last_bits():
     assert info["render_compaction"] == numba_simd.COMPACTION in numba_simd.COMPACTIONS
     assert info["numba_cpu"] and info["cpu"] and info["logical_cpus"] >= 1
     assert info["device"] == "cpu" and info["cuda_device"] is None
+
+
+def test_machine_summary_names_cpu_and_kernel_sets():
+    line = machine_summary()
+    assert line.startswith(cpu_model() + "; torch " + torch.__version__)
+    assert f"{torch.backends.cpu.get_cpu_capability()} kernels, {torch.get_num_threads()} threads" in line
+    assert line.endswith(f"walk compaction {numba_simd.COMPACTION}") and "GPU" not in line
+    gpu = machine_summary({**machine_info(), "cuda_device": "NVIDIA H100"})
+    assert gpu.endswith("; GPU NVIDIA H100")

@@ -321,12 +321,3 @@ def test_mix_components_takes_coarse_and_fine_components_from_two_runs(tmp_path)
     with pytest.raises(ValueError, match="masks"):
         mixer.mix(tmp_path, "seq", "a", "b", 3, "mix2")
 
-
-def test_report_names_the_machine(quality):
-    import torch
-
-    from vid2haircut.machine import cpu_model
-
-    line = quality._machine_line()
-    assert line.startswith(cpu_model())
-    assert f"torch kernels {torch.backends.cpu.get_cpu_capability()}" in line

@@ -71,3 +71,13 @@ def machine_info(device: str = "cpu") -> dict:
         "device": str(device),
         "cuda_device": cuda,
     }
+
+
+def machine_summary(info: dict | None = None) -> str:
+    """One line naming the machine of :func:`machine_info` (``info``; this machine's when None), for
+    the headers of benchmark reports: "AMD EPYC (family 25 model 1); torch 2.13.0+cpu, AVX2 kernels,
+    2 threads; numba target znver3, walk compaction permute"."""
+    m = machine_info() if info is None else info
+    gpu = f"; GPU {m['cuda_device']}" if m["cuda_device"] else ""
+    return (f"{m['cpu']}; torch {m['torch']}, {m['torch_cpu_capability']} kernels, {m['torch_threads']} threads; "
+            f"numba target {m['numba_cpu']}, walk compaction {m['render_compaction']}{gpu}")
