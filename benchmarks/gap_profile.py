@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the benchmark's sequence layout)
+import quality_data  # noqa: E402  (the benchmark's sequence layout)
 
 SDF_BINS_M = (0.0, 0.01, 0.02, 0.03, 0.05, np.inf)
 N_POINTS = 100
@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
     variants = args.variants.split(",")
     gaps, tips, lengths, shells, standoffs = [], [], [], [], []
     for name in args.sequences.split(","):
-        seq = quality.seq_files(work, name)
+        seq = quality_data.seq_files(work, name)
         gt_set = load_strands(seq["gt"])
         gt = oriented_points(gt_set, N_POINTS).points
         fit, extra = load_head_fit(seq["head"])

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the benchmark's sequence layout)
+import quality_data  # noqa: E402  (the benchmark's sequence layout)
 
 
 def tip_sway(rest: np.ndarray, params, frames: list[int]) -> np.ndarray:
@@ -35,7 +35,7 @@ def keyframe_sway(work: Path, name: str, stride: int = 5) -> tuple[list[int], in
     from vid2haircut.io.strand_formats import load_strands
     from vid2haircut.synth.motion import MotionParams
 
-    seq = quality.seq_files(work, name)
+    seq = quality_data.seq_files(work, name)
     meta = json.loads(seq["gt"].with_name("meta.json").read_text())
     rest = np.asarray(load_strands(seq["gt"]).points[::stride])
     kf = json.loads(seq["keyframes"].read_text())

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the benchmark's sequence names)
+import quality_data  # noqa: E402  (the benchmark's sequence names)
 
 from vid2haircut.fit.outputs import load_hairmap, write_hairmap  # noqa: E402
 
@@ -57,7 +57,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fine", required=True, help="sweep setting giving components >= --split")
     p.add_argument("--split", type=int, default=10)
     p.add_argument("--name", default=None, help="new setting name (default mix_<coarse>_<fine>_<split>)")
-    p.add_argument("--sequences", default=",".join(f"{f}_{s}" for f, s in quality.SEQUENCES))
+    p.add_argument("--sequences", default=",".join(f"{f}_{s}" for f, s in quality_data.SEQUENCES))
     args = p.parse_args(argv)
     setting = args.name or f"mix_{args.coarse}_{args.fine}_{args.split}"
     for n in args.sequences.split(","):

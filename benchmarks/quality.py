@@ -54,10 +54,10 @@ import numpy as np
 
 from quality_report import (LABELS, emit, loss_table, region_bound, region_table, seed_table, table, tip_table,
                             unseen_bound)
+from quality_data import HEAD_FILL, SEQUENCES, SWAY_GAIN, YAW_MAX, parse_sequence, prepare
+from quality_jobs import run_jobs
 from quality_score import score, unseen_test
 
-SEQUENCES = [("bob", 1000), ("shoulder_straight", 1001), ("side_parted", 1002), ("bangs", 1003),
-             ("wavy", 1004), ("short_straight", 1005)]
 STAGE2_VARIANTS = {
     "stage2": {},
     "no_deformation": {"switches": {"use_deformation": False}},
@@ -80,73 +80,9 @@ STAGE1_VARIANTS = {
 }
 DEFAULT_VARIANTS = ["oracle", "prior", "stage1_ft", "stage1", "stage2", "no_deformation", "no_smoothness",
                     "no_visibility", "no_pca", "segment_gate", "kf1", "kf3"]
-HEAD_FILL = 0.6  # fraction of the image height the head (crown to neck) fills (the generator's default)
-YAW_MAX = 60.0  # largest head turn of the sequences, degrees (the generator's default; see --yaw-max)
-SWAY_GAIN = 0.012  # hair sway of the sequences (the generator's default; see --sway-gain)
 QUICK = {"stage1": {"iterations": 30}, "stage2": {"iterations": 60, "canonical_steps": 30, "ramp_steps": 10}}
 
 log = logging.getLogger("quality")
-
-
-def parse_sequence(name: str) -> tuple[str, int]:
-    """``<family>_<seed>`` -> (family, seed) for any generator family and a seed >= 1000 (the prior
-    trains on seeds below 1000); SystemExit naming what is wrong otherwise."""
-    from vid2haircut.synth.hairstyles import FAMILIES
-
-    family, _, seed = name.rpartition("_")
-    if family not in FAMILIES or not seed.isdigit():
-        raise SystemExit(f"unknown sequence {name!r}: expected <family>_<seed> with a family of "
-                         f"{', '.join(FAMILIES)}")
-    if int(seed) < 1000:
-        raise SystemExit(f"sequence {name!r}: seeds below 1000 are the prior's training hairstyles")
-    return family, int(seed)
-
-
-def seq_files(work: Path, subject: str) -> dict:
-    """Where a sequence of a work folder and its front-stage outputs live (the dict :func:`prepare` returns)."""
-    front = work / "front" / subject
-    return {"root": work / "data", "subject": subject, "keyframes": front / "keyframes.json",
-            "head": front / "head.npz", "targets": front / "targets",
-            "gt": work / "data" / subject / "sequences" / "HAIR" / "ground_truth" / "strands.npz"}
-
-
-def prepare(work: Path, family: str, seed: int, n_frames: int, sway_gain: float = SWAY_GAIN,
-            head_fill: float = HEAD_FILL, n_keyframes: int = 6, yaw_max: float = YAW_MAX,
-            depth_context: bool = False) -> dict:
-    """Synthesise one sequence and run the front stages (cached) with ``n_keyframes`` keyframes
-    (``depth_context``: depth maps and targets that also cover the visible head)."""
-    from vid2haircut.front.keyframes import KeyframeConfig
-    from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
-    from vid2haircut.synth.sequence import SynthConfig, synthesize_sequence
-
-    seq = seq_files(work, f"{family}_{seed}")
-    root, subject, front = seq["root"], seq["subject"], seq["keyframes"].parent
-    meta = seq["gt"].with_name("meta.json")
-    if meta.is_file():
-        cached = json.loads(meta.read_text())
-        for key, have, want in (("sway_gain", cached["motion"].get("sway_gain"), sway_gain),
-                                ("head_fill", cached["config"].get("head_fill"), head_fill),
-                                ("yaw_max_deg", cached["motion"].get("yaw_max_deg"), yaw_max),
-                                ("depth_context", float(cached["config"].get("depth_context", False)),
-                                 float(depth_context))):
-            if have is None or abs(have - want) > 1e-12:
-                raise SystemExit(f"{meta}: cached sequence has {key} {have}, not {want}; use another --work")
-    else:
-        synthesize_sequence(root, subject, "HAIR", SynthConfig(family=family, seed=seed, n_frames=n_frames,
-                                                               sway_gain=sway_gain, head_fill=head_fill,
-                                                               yaw_max_deg=yaw_max, depth_context=depth_context),
-                            overwrite=True)
-    if not (front / "keyframes.json").is_file():
-        run_keyframes(root, subject, "HAIR", front, cfg=KeyframeConfig(num_keyframes=n_keyframes))
-    have = len(json.loads((front / "keyframes.json").read_text())["frames"])
-    if have != n_keyframes:
-        raise SystemExit(f"{front / 'keyframes.json'}: cached front stages have {have} keyframes, not "
-                         f"{n_keyframes}; use another --work")
-    if not (front / "head.npz").is_file():
-        run_fit_head(root, subject, "HAIR", front / "keyframes.json", front)
-    if not (front / "targets" / "targets.json").is_file():
-        run_targets(root, subject, "HAIR", front / "head.npz", front / "targets", depth_context=depth_context)
-    return seq
 
 
 def prior_strands(seq: dict, prior_dir: Path, out: Path, decoding: dict) -> Path:
@@ -238,50 +174,6 @@ def job_plan(names: list[str], variants: list[str]) -> list[list[tuple[str, list
                         [(n, [v]) for v in stage2 for n in names]) if p]
 
 
-PER_JOB = ("--sequences", "--variants", "--jobs", "--out")  # options each --jobs process gets its own of
-
-
-def forwarded(argv: list[str]) -> list[str]:
-    """``argv`` without the options of :data:`PER_JOB` (``--x v`` or ``--x=v``): what every ``--jobs``
-    process shares."""
-    out, skip = [], False
-    for arg in argv:
-        if skip:
-            skip = False
-        elif arg in PER_JOB:
-            skip = True
-        elif not arg.startswith(tuple(f"{o}=" for o in PER_JOB)):
-            out.append(arg)
-    return out
-
-
-def run_jobs(plan: list[list[tuple[str, list[str]]]], argv: list[str], work: str, jobs: int) -> None:
-    """Run each phase's (sequence, variants) jobs as ``jobs`` parallel processes of this script with
-    the options of ``argv`` (:func:`forwarded`; logs under ``<work>/logs/``); SystemExit naming the
-    logs of failed jobs."""
-    import subprocess
-    from concurrent.futures import ThreadPoolExecutor
-
-    common = forwarded(argv)
-    logs = Path(work) / "logs"
-    logs.mkdir(parents=True, exist_ok=True)
-
-    def one(job: tuple[str, list[str]]) -> Path | None:
-        name, vs = job
-        path = logs / f"{name}_{'+'.join(vs)}.log"
-        with open(path, "w") as fh:
-            rc = subprocess.call([sys.executable, __file__, *common, "--sequences", name, "--variants",
-                                  ",".join(vs)], stdout=fh, stderr=subprocess.STDOUT)
-        log.info("%s %s: %s", name, ",".join(vs), "done" if rc == 0 else f"failed ({rc}), see {path}")
-        return path if rc else None
-
-    for phase in plan:
-        with ThreadPoolExecutor(jobs) as ex:
-            failed = [p for p in ex.map(one, phase) if p]
-        if failed:
-            raise SystemExit("quality: jobs failed, see " + ", ".join(map(str, failed)))
-
-
 def _merge(a: dict, b: dict) -> dict:
     out = json.loads(json.dumps(a))
     for k, v in b.items():
@@ -348,7 +240,8 @@ def main(argv: list[str] | None = None) -> int:
         for name in names:  # the data first, one sequence at a time; the jobs then share it
             prepare(work, *pool[name], args.frames, args.sway_gain, args.head_fill, args.keyframes, args.yaw_max,
                     args.depth_context)
-        run_jobs(job_plan(names, variants), sys.argv[1:] if argv is None else argv, args.work, args.jobs)
+        run_jobs(job_plan(names, variants), sys.argv[1:] if argv is None else argv, args.work, args.jobs,
+                 __file__)
     results, times, per_seed = {}, {}, {}
     for name in names:
         t0 = time.perf_counter()

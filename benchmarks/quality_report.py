@@ -66,7 +66,7 @@ def region_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str 
 def unseen_bound(results: dict, seqs: list[str], base: str = "stage1", fit: str = "stage2") -> str:
     """One sentence like :func:`region_bound`, with the part of Chamfer_pts that no keyframe can show
     (``chamfer_pts_unseen``: points in the back region or outside the image of every keyframe, see
-    ``quality.unseen_test``) as fitted and the rest at the representation floor. Returns "" unless
+    ``quality_score.unseen_test``) as fitted and the rest at the representation floor. Returns "" unless
     the three variants carry that part on every sequence."""
     if not all((s, v) in results and "chamfer_pts_unseen" in results[(s, v)]
                for s in seqs for v in ("oracle", base, fit)):

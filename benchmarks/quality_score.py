@@ -1,7 +1,6 @@
 """Scoring of ``benchmarks/quality.py`` runs against the ground truth: the points no keyframe can
 show, and the exact metrics of a strand file, cached next to it. Kept apart from the runs so that
-the other benchmarks that score (``stage2_sweep.py``) use the same rule; ``quality.score`` and
-``quality.unseen_test`` are these.
+the other benchmarks that score (``stage2_sweep.py``) use the same rule.
 """
 
 from __future__ import annotations

@@ -25,7 +25,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the benchmark's sequence layout)
+import quality_data  # noqa: E402  (the benchmark's sequence layout)
 
 from vid2haircut.fit.components import CARVE_TOLERANCE, LENGTH_SPREAD  # noqa: E402
 from vid2haircut.fit.config import Stage2Config  # noqa: E402
@@ -46,7 +46,7 @@ def redecode_sequence(job: tuple) -> list[str]:
     from vid2haircut.io.strand_formats import save_strands
     from vid2haircut.prior.codec import StrandCodec
 
-    seq = quality.seq_files(Path(src), name)
+    seq = quality_data.seq_files(Path(src), name)
     loaded: dict = {}
     done = []
     for run in sorted((Path(src) / "runs" / name).iterdir()):

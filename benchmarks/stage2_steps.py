@@ -27,7 +27,7 @@ import vid2haircut  # noqa: F401  (before torch, as in the CLI: see the package 
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the work folder's layout)
+import quality_data  # noqa: E402  (the work folder's layout)
 
 
 def run_short(work: Path, sequence: str, canonical: int, dense: int, settings: dict) -> None:
@@ -35,7 +35,7 @@ def run_short(work: Path, sequence: str, canonical: int, dense: int, settings: d
     ``sequence`` (default configuration with ``settings`` on top), into a temporary folder."""
     from vid2haircut.fit.pipeline import run_stage2
 
-    seq = quality.seq_files(work, sequence)
+    seq = quality_data.seq_files(work, sequence)
     stage1 = work / "runs" / sequence / "stage1"
     if not (stage1 / "hairmap.npz").is_file():
         raise SystemExit(f"{stage1 / 'hairmap.npz'}: no Stage 1 here; run benchmarks/quality.py "

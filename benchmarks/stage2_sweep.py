@@ -32,8 +32,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the benchmark's sequence layout and scoring)
+import quality_data  # noqa: E402  (the benchmark's sequence layout)
 import quality_report  # noqa: E402
+from quality_score import score  # noqa: E402
 
 KEEP = ("hairmap.npz", "stage2.json")
 
@@ -45,7 +46,7 @@ def _run_one(job: tuple) -> tuple[str, str, float]:
     torch.set_num_threads(threads)
     from vid2haircut.fit.pipeline import run_stage2
 
-    seq = quality.seq_files(Path(work), name)
+    seq = quality_data.seq_files(Path(work), name)
     out = Path(work) / "sweep" / name / setting
     if not (out / "stage2.json").is_file():
         t0 = time.perf_counter()
@@ -81,7 +82,7 @@ def decoded(work: Path, name: str, setting: str) -> Path:
     out = work / "sweep" / name / setting
     path = out / "strands.npz"
     if not path.is_file():
-        seq = quality.seq_files(work, name)
+        seq = quality_data.seq_files(work, name)
         cfg = stage2_config(json.loads((out / "stage2.json").read_text())["config"])
         data = load_fit_data(seq["root"], name, seq["keyframes"], seq["head"], seq["targets"], size=cfg.render.size,
                              n_keyframes=cfg.n_keyframes, occlude_head=cfg.render.occlude_head)
@@ -95,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--work", required=True, help="a benchmarks/quality.py work folder (Stage 1 cached)")
     p.add_argument("--grid", default='{"base": {}}', help="JSON {setting name: Stage 2 overrides}, or a file")
-    p.add_argument("--sequences", default=",".join(f"{f}_{s}" for f, s in quality.SEQUENCES))
+    p.add_argument("--sequences", default=",".join(f"{f}_{s}" for f, s in quality_data.SEQUENCES))
     p.add_argument("--jobs", type=int, default=1)
     p.add_argument("--threads", type=int, default=1, help="torch threads per job")
     p.add_argument("--device", default="cpu")
@@ -133,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = ["| setting | " + " | ".join(names) + " | mean CD_pts | mean CD_angle | front | side | back |",
             "|---" * (len(names) + 6) + "|"]
     for s in grid:
-        ms = [quality.score(decoded(work, n, s), quality.seq_files(work, n)["gt"],
+        ms = [score(decoded(work, n, s), quality_data.seq_files(work, n)["gt"],
                             work / "sweep" / n / s / "metrics.json") for n in names]
         cells = [f"{m['chamfer_pts'] * 1e4:.4f}" for m in ms]
         reg = [np.mean([m[f"chamfer_pts_{r}"] for m in ms]) * 1e4 for r in ("front", "side", "back")]

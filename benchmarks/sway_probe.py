@@ -32,7 +32,7 @@ import torch
 from scipy.spatial import cKDTree
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import quality  # noqa: E402  (the benchmark's sequence layout)
+import quality_data  # noqa: E402  (the benchmark's sequence layout)
 from keyframe_sway import tip_sway  # noqa: E402
 
 
@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> None:
     torch.set_num_threads(args.threads)
     work = Path(args.work)
     for name in args.sequences.split(","):
-        seq = quality.seq_files(work, name)
+        seq = quality_data.seq_files(work, name)
         meta = json.loads(seq["gt"].with_name("meta.json").read_text())
         if "motion" not in meta:
             raise SystemExit(f"{seq['gt'].with_name('meta.json')}: no 'motion' record")

@@ -18,6 +18,16 @@ def quality():
 
 
 @pytest.fixture(scope="module")
+def quality_data():
+    return load_benchmark("quality_data")
+
+
+@pytest.fixture(scope="module")
+def quality_jobs():
+    return load_benchmark("quality_jobs")
+
+
+@pytest.fixture(scope="module")
 def quality_report():
     return load_benchmark("quality_report")
 
@@ -94,7 +104,7 @@ def test_unseen_test_marks_the_back_and_what_leaves_every_frame(quality, tmp_pat
 
     monkeypatch.setattr("vid2haircut.front.headfile.load_head_fit", lambda path: (Fit, {"serial": "c0"}))
     monkeypatch.setattr("vid2haircut.camera.load_cameras", lambda path: {"c0": cam})
-    test = quality.unseen_test({"head": tmp_path / "head.npz", "root": tmp_path, "subject": "s_1000"})
+    test = load_benchmark("quality_score").unseen_test({"head": tmp_path / "head.npz", "root": tmp_path, "subject": "s_1000"})
     pts = np.array([[0.0, 0.0, 0.1],      # in front, in the image
                     [0.0, 0.0, -0.1],     # behind: back region
                     [0.0, -2.0, 0.1],     # in front, far below the image
@@ -102,23 +112,23 @@ def test_unseen_test_marks_the_back_and_what_leaves_every_frame(quality, tmp_pat
     assert test(pts).tolist() == [False, True, True, False]
 
 
-def test_sequence_names_take_any_family_and_an_evaluation_seed(quality):
-    assert quality.parse_sequence("short_straight_1015") == ("short_straight", 1015)
+def test_sequence_names_take_any_family_and_an_evaluation_seed(quality_data):
+    assert quality_data.parse_sequence("short_straight_1015") == ("short_straight", 1015)
     with pytest.raises(SystemExit, match="training hairstyles"):
-        quality.parse_sequence("bob_12")
+        quality_data.parse_sequence("bob_12")
     with pytest.raises(SystemExit, match="expected <family>_<seed>"):
-        quality.parse_sequence("mullet_1000")
+        quality_data.parse_sequence("mullet_1000")
 
 
-def test_cached_sequences_of_another_capture_are_refused(quality, tmp_path):
-    seq = quality.seq_files(tmp_path, "bob_1000")
+def test_cached_sequences_of_another_capture_are_refused(quality_data, tmp_path):
+    seq = quality_data.seq_files(tmp_path, "bob_1000")
     seq["gt"].parent.mkdir(parents=True)
     meta = {"motion": {"sway_gain": 0.03, "yaw_max_deg": 60.0}, "config": {"head_fill": 0.6}}
     seq["gt"].with_name("meta.json").write_text(json.dumps(meta))
     with pytest.raises(SystemExit, match="yaw_max_deg 60.0, not 90.0"):
-        quality.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, yaw_max=90.0)
+        quality_data.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, yaw_max=90.0)
     with pytest.raises(SystemExit, match="head_fill 0.6, not 0.5"):
-        quality.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, head_fill=0.5)
+        quality_data.prepare(tmp_path, "bob", 1000, 48, sway_gain=0.03, head_fill=0.5)
 
 
 def test_gap_profile_parts_add_up_and_find_the_tips():
@@ -221,7 +231,7 @@ def test_redecode_writes_what_the_stage_wrote(tmp_path):
     files = write_toy_files(toy_problem(size=40, n_frames=3, map_res=12, k=12), work / "data", subject=name)
     (work / "front").mkdir(parents=True)
     shutil.move(str(files["keyframes"].parent), str(work / "front" / name))
-    seq = redecode.quality.seq_files(work, name)
+    seq = redecode.quality_data.seq_files(work, name)
     common = (seq["root"], name, seq["keyframes"], seq["head"], seq["targets"])
     small = {"render": {"n_points": 16, "size": 40}, "n_dense": 200}
     s1, s2 = work / "runs" / name / "stage1", work / "runs" / name / "stage2"
@@ -271,7 +281,7 @@ def test_job_plan_runs_the_starts_first_then_one_job_per_stage2_row(quality):
     assert quality.job_plan(["a"], ["oracle"]) == [[("a", ["oracle"])]]
 
 
-def test_jobs_forward_the_options_and_name_the_failed_log(quality, tmp_path, monkeypatch):
+def test_jobs_forward_the_options_and_name_the_failed_log(quality_jobs, tmp_path, monkeypatch):
     import subprocess
 
     calls = []
@@ -285,13 +295,15 @@ def test_jobs_forward_the_options_and_name_the_failed_log(quality, tmp_path, mon
             "--stage2-seeds", "0,1", "--variants=stage2", "--settings", '{"stage2": {}}', "--out", "t.md",
             "--depth-context"]
     with pytest.raises(SystemExit, match="b_stage2.log"):
-        quality.run_jobs([[("a", ["stage1"])], [("a", ["stage2"]), ("b", ["stage2"])]], argv, str(tmp_path), 2)
+        quality_jobs.run_jobs([[("a", ["stage1"])], [("a", ["stage2"]), ("b", ["stage2"])]], argv, str(tmp_path), 2,
+                              "bench.py")
     assert len(calls) == 3 and calls[0][-4:] == ["--sequences", "a", "--variants", "stage1"]
+    assert calls[0][:2] == [sys.executable, "bench.py"]
     flags = calls[0][2:-4]
     assert flags == ["--work", str(tmp_path), "--sway-gain", "0.03", "--threads", "1", "--stage2-seeds", "0,1",
                      "--settings", '{"stage2": {}}', "--depth-context"]   # every shared option, no per-job one
     with pytest.raises(SystemExit):        # a failed phase stops the next one
-        quality.run_jobs([[("b", ["stage1"])], [("a", ["stage2"])]], argv, str(tmp_path), 2)
+        quality_jobs.run_jobs([[("b", ["stage1"])], [("a", ["stage2"])]], argv, str(tmp_path), 2, "bench.py")
     assert calls[-1][-3] == "b"
 
 
