@@ -34,7 +34,7 @@ from numba import njit
 
 from vid2haircut.render.numba_math import lane_cast
 from vid2haircut.render.numba_simd import line16
-from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart
+from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart, vstart32
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
 BIG = 1e12  # turns a positive depth gap (> 1e-12 m) into a head factor of 1 after clamping
@@ -70,12 +70,15 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
     va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
     lo = max(min(va, vb), tv0) - tv0
     hi = min(max(va, vb) + h - 1, tv1) - tv0
+    # the lanes in int32 (wrapping as the int32 stores of the int64 sums did): the same window rows, in a
+    # loop that LLVM vectorises without AVX-512DQ's float <-> int64 conversions
+    u0, ua32, ub32, tv032, hm1 = np.int32(tu0), np.int32(ua), np.int32(ub), np.int32(tv0), np.int32(h - 1)
     for i in range(L):
-        u = tu0 + i
-        vs = vstart(sl, u, v0) - tv0
-        ok = (u >= ua) & (u <= ub)
-        vlo[i] = np.int32(vs) if ok else np.int32(FAR)
-        vhi[i] = np.int32(vs + h - 1) if ok else np.int32(-FAR)
+        u = np.int32(u0 + np.int32(i))
+        vs = np.int32(vstart32(sl, u, v0) - tv032)
+        ok = (u >= ua32) & (u <= ub32)
+        vlo[i] = vs if ok else np.int32(FAR)
+        vhi[i] = np.int32(vs + hm1) if ok else np.int32(-FAR)
         d = lane_cast(u, mu) - mu
         lane[L_DU, i] = d
         lane[L_QA, i] = qu * d * d

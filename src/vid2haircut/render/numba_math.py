@@ -71,10 +71,13 @@ def _horner(x, coeffs):
 def vexp(x):
     """exp(x) for x <= 0 (arguments below -700 are treated as -700)."""
     x = max(x, -700.0)
-    k = math.floor(x * _LOG2E + 0.5)
+    # k as a float (np.floor; numba's math.floor returns an int64) and through int32 for the exponent
+    # bits (exact: |k| <= 1010 here; NaN / inf give p NaN either way): conversions between float64
+    # and int64 have no vector form before AVX-512DQ, and would leave the loops scalar on AVX2 CPUs
+    k = np.floor(x * _LOG2E + 0.5)
     r = (x - k * _LN2_HI) - k * _LN2_LO  # |r| <= ln(2) / 2
     p = _horner(r, _EXP_COEFFS)
-    return p * _f64_from_bits((np.int64(k) + 1023) << 52)
+    return p * _f64_from_bits((np.int64(np.int32(k)) + 1023) << 52)
 
 
 @njit(cache=True, inline="always")
@@ -88,7 +91,7 @@ def vlog(y):
     e = e + 1 if big else e
     s = (m - 1.0) / (m + 1.0)  # log m = 2 atanh(s), |s| <= 0.1716
     p = _horner(s * s, _LOG_COEFFS)
-    return 2.0 * s * p + e * _LN2
+    return 2.0 * s * p + np.float64(np.int32(e)) * _LN2  # |e| <= 1024; int32: as in vexp
 
 
 _F = np.float32

@@ -39,6 +39,17 @@ def vstart(slope, u, v0):
     return i + np.int64(t > np.float32(i))
 
 
+@njit(inline="always")
+def vstart32(slope, u, v0):
+    """:func:`vstart` in int32 for an int32 ``u``: the same value wherever |slope * u + v0| < 2^31 (beyond,
+    the smallest int32). Its conversions have AVX2 vector forms (float32 <-> int64 conversions need
+    AVX-512DQ), so that a loop over lanes of it vectorises on AVX2 CPUs too."""
+    t = slope * np.float32(u)
+    t = t + v0
+    i = np.int32(t)
+    return i + np.int32(t > np.float32(i))
+
+
 @njit(cache=True, parallel=True)
 def tile_head_max(head, has_head, nframes, width, height, tile):
     """[NT] largest head depth over the pixels of each tile (+inf without a head; the dtype of

@@ -164,12 +164,13 @@ def weight_table(Lb, nb):
     T = np.ones(npx)  # exp(Lx): transmittance in front of the bin
     for bb in range(nb):
         Lrow, Mrow, Erow = Lb[bb], negM[bb], Etab[bb]
+        for p in range(npx):  # E first, in a loop of its own: fewer live constants (AVX2 has 16 registers)
+            Erow[p] = _expm1(min(Lrow[p], -1e-7))
         for p in range(npx):
             L = Lrow[p]
             Lc = min(L, -1e-7)
-            E = _expm1(Lc)
+            E = Erow[p]
             Mrow[p] = -(T[p] * (E / Lc))
-            Erow[p] = E
             T[p] *= 1.0 + (E if Lc == L else L)  # expm1(L) = L to 5e-8 relative when |L| < 1e-7
     return negM, Etab
 
