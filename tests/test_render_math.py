@@ -166,3 +166,32 @@ def test_window_start_is_the_float32_ceiling():
     for sl, u, v0 in zip(slopes, us, v0s):
         t = np.float32(np.float32(sl * np.float32(u)) + v0)
         assert vstart(sl, u, v0) == int(np.ceil(t)), (sl, u, v0)
+
+
+def test_window_start_in_int32_is_the_same():
+    """numba_tiles.vstart32 (the walk's lanes: int32, vectorisable on AVX2) = vstart for int32 u,
+    over the same cases and starts far from 0 (up to 2^30); +-2^30 beyond."""
+    from vid2haircut.render.numba_tiles import vstart, vstart32
+
+    @numba.njit
+    def both(slopes, us, v0s, out):
+        for i in range(slopes.shape[0]):
+            out[i, 0] = vstart(slopes[i], us[i], v0s[i])
+            out[i, 1] = vstart32(slopes[i], np.int32(us[i]), v0s[i])
+
+    rng = np.random.default_rng(4)
+    n = 4000
+    slopes = rng.uniform(-1, 1, n).astype(np.float32)
+    slopes[:6] = [0.0, -0.0, 1.0, -1.0, 0.5, -0.5]
+    us = rng.integers(0, 600, n)
+    v0s = rng.uniform(-700, 700, n).astype(np.float32)
+    v0s[:400] = np.nextafter(np.round(v0s[:400]), np.float32(np.inf))
+    v0s[400:800] = np.nextafter(np.round(v0s[400:800]), np.float32(-np.inf))
+    v0s[800:1000] = rng.uniform(-2.0**30, 2.0**30, 200).astype(np.float32)
+    out = np.empty((n, 2), np.int64)
+    both(slopes, us, v0s, out)
+    assert np.array_equal(out[:, 0], out[:, 1])
+    big = np.array([3e9, -3e9], np.float32)
+    out2 = np.empty((2, 2), np.int64)
+    both(np.zeros(2, np.float32), np.zeros(2, np.int64), big, out2)
+    assert list(out2[:, 1]) == [2**30, -2**30]

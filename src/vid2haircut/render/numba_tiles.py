@@ -41,11 +41,12 @@ def vstart(slope, u, v0):
 
 @njit(inline="always")
 def vstart32(slope, u, v0):
-    """:func:`vstart` in int32 for an int32 ``u``: the same value wherever |slope * u + v0| < 2^31 (beyond,
-    the smallest int32). Its conversions have AVX2 vector forms (float32 <-> int64 conversions need
-    AVX-512DQ), so that a loop over lanes of it vectorises on AVX2 CPUs too."""
+    """:func:`vstart` in int32 for an int32 ``u``: the same value wherever |slope * u + v0| <= 2^30; beyond,
+    +-2^30 (rows far outside any image). Its conversions have AVX2 vector forms (float32 <-> int64
+    conversions need AVX-512DQ), so that a loop over lanes of it vectorises on AVX2 CPUs too."""
     t = slope * np.float32(u)
     t = t + v0
+    t = min(max(t, np.float32(-2.0**30)), np.float32(2.0**30))
     i = np.int32(t)
     return i + np.int32(t > np.float32(i))
 
