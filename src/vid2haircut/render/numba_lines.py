@@ -70,8 +70,9 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
     va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
     lo = max(min(va, vb), tv0) - tv0
     hi = min(max(va, vb) + h - 1, tv1) - tv0
-    # the lanes in int32 (wrapping as the int32 stores of the int64 sums did): the same window rows, in a
-    # loop that LLVM vectorises without AVX-512DQ's float <-> int64 conversions
+    # the lanes in int32 (vstart32; sums wrap as the int32 stores of the int64 sums did): the same window
+    # rows wherever they lie within +-2^30, in a loop that LLVM vectorises without AVX-512DQ's
+    # float <-> int64 conversions
     u0, ua32, ub32, tv032, hm1 = np.int32(tu0), np.int32(ua), np.int32(ub), np.int32(tv0), np.int32(h - 1)
     for i in range(L):
         u = np.int32(u0 + np.int32(i))
