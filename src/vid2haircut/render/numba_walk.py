@@ -184,12 +184,19 @@ def gradient_table(Lb, nb, negM, Etab, Gt, g_logt):
     H = np.empty((nbins, npx))
     behind = np.zeros(npx)  # d loss / d Lx from the bins behind
     for bb in range(nb - 1, -1, -1):
-        Lrow, Grow, Mrow, Erow, Hrow = Lb[bb], Gt[bb], negM[bb], Etab[bb], H[bb]
-        for p in range(npx):
-            L = Lrow[p]
-            GM = Grow[p] * Mrow[p]
-            Ls = min(L, -1e-2)
-            R = L * (1.0 / 12.0) + 0.5 if L > -1e-2 else (Erow[p] + 1.0) / Erow[p] - 1.0 / Ls
-            Hrow[p] = behind[p] + GM * R + g_logt[p]
-            behind[p] += GM
+        _gradient_row(Lb[bb], Gt[bb], negM[bb], Etab[bb], H[bb], behind, g_logt)
     return H
+
+
+@njit(cache=True, error_model="numpy", inline="never")
+def _gradient_row(Lrow, Grow, Mrow, Erow, Hrow, behind, g_logt):
+    """One bin row of :func:`gradient_table` (vectorised over pixels). A function of its own: inlined
+    under the loop that runs over the rows backwards, LLVM left this loop scalar (measured with AVX2;
+    a tile's table took 14 us instead of 9)."""
+    for p in range(Lrow.shape[0]):
+        L = Lrow[p]
+        GM = Grow[p] * Mrow[p]
+        Ls = min(L, -1e-2)
+        R = L * (1.0 / 12.0) + 0.5 if L > -1e-2 else (Erow[p] + 1.0) / Erow[p] - 1.0 / Ls
+        Hrow[p] = behind[p] + GM * R + g_logt[p]
+        behind[p] += GM
