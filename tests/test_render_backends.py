@@ -86,15 +86,20 @@ def test_default_float32_path_is_close_to_torch():
 
 
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
-@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
-def test_fused_projection_matches_torch(dtype):
+@pytest.mark.parametrize("dtype,p", [(torch.float64, 8), (torch.float32, 8), (torch.float64, 2), (torch.float64, 5),
+                                     (torch.float64, 19), (torch.float32, 19)])
+def test_fused_projection_matches_torch(dtype, p):
     """The numba projection (numba_project.py) gives the torch projection's Gaussian table, and in
-    float64 its gradient w.r.t. the points."""
+    float64 its gradient w.r.t. the points, for strands of p points (the kernels pad each strand's
+    segments to whole vectors) with a strand of NaN and some drawn segments whose neighbours are not."""
     from vid2haircut.render.gaussians import segment_gaussians
     from vid2haircut.render.numba_backend import gaussian_table, project_fused
 
     pts, K, E, w, h, _ = _backend_scene(dtype)
-    pts = torch.cat([pts.detach(), torch.full_like(pts[:, :1].detach(), float("nan"))], 1).requires_grad_(True)
+    B, N = pts.shape[:2]
+    pts = torch.nn.functional.interpolate(pts.detach().reshape(B * N, 8, 3).transpose(1, 2), size=p, mode="linear",
+                                          align_corners=True).transpose(1, 2).reshape(B, N, p, 3)
+    pts = torch.cat([pts, torch.full_like(pts[:, :1], float("nan"))], 1).requires_grad_(True)
     g = segment_gaussians(pts, K, E, 0.004, 0.3, 1e-2)
     G = g.depths.numel()
     ref = gaussian_table(g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2))
@@ -107,6 +112,7 @@ def test_fused_projection_matches_torch(dtype):
         cref = g.covs.reshape(G, 3)[valid]
         assert float(((covs[valid] - cref).abs() / cref.abs().amax(0)).max()) < rtol
     weights = torch.randn(G, 8, generator=torch.Generator().manual_seed(3), dtype=dtype) * valid[:, None]
+    weights[::3] = 0.0  # segments the loss does not see, between seen ones
     (gr,) = torch.autograd.grad((torch.nan_to_num(ref) * weights).sum(), pts)
     (gf,) = torch.autograd.grad((table * weights).sum(), pts)
     ok = torch.isfinite(pts).all(-1)
