@@ -250,3 +250,63 @@ def test_hidden_tile_instances_are_culled_without_changing_the_render(dtype, mon
     gstart, inst_pos, tile_start, sorted_g = real(wint, wflt, np.zeros(3, np.int64), 1, 16, 8, 8, z, hmax)
     assert list(tile_start) == [0, 1, 2] and list(sorted_g) == [1, 2] and list(gstart) == [0, 0, 1, 2]
 
+
+
+def _windows_reference(means, covs, valid, height, width, power_min, cols):
+    """Slow float32 reference of the numba window tables (one Gaussian at a time, numpy scalars, the
+    formulas of footprint.gaussian_windows): (hz, u_lo, ncols, need, slope, v0) per Gaussian; u_lo,
+    need, slope and v0 are only meaningful where ncols > 0."""
+    f32 = np.float32
+    c2 = f32(-2.0 * power_min)
+    out = []
+    for (mx, my), (sxx, sxy, syy), ok in zip(means.astype(f32), covs.astype(f32), valid):
+        hz = sxx >= syy
+        mu, mv, suu, svv = (mx, my, sxx, syy) if hz else (my, mx, syy, sxx)
+        size_u, size_v = (f32(width), f32(height)) if hz else (f32(height), f32(width))
+        with np.errstate(all="ignore"):
+            eu, ev = np.sqrt(c2 * suu), np.sqrt(c2 * svv)
+            u_lo = max(np.ceil(mu - eu), f32(0.0))
+            u_hi = min(np.floor(mu + eu), size_u - f32(1.0))
+            slope = sxy / suu
+            det = max(suu * svv - sxy * sxy, f32(1e-12))
+            half = np.sqrt(c2 * det / suu)
+            good = ok and mv + ev >= 0 and mv - ev <= size_v - 1 and all(np.isfinite([mu, eu, ev, half]))
+            ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if good else f32(0.0)
+            nt = int(np.ceil(ncol / f32(cols)))
+            need = int(np.floor(f32(2.0) * half) + f32(1.0)) if nt > 0 else 1
+            out.append((int(hz), int(u_lo) if good else 0, nt * cols, need, slope, mv - slope * mu - half))
+    return out
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+def test_numba_windows_match_a_float32_reference():
+    """numba_tiles.gaussian_windows gives, window for window, the
+    float32 formulas evaluated one Gaussian at a time: random Gaussians on and off a 61 x 47 image,
+    thin and round, some degenerate, NaN, infinite or invalid."""
+    from vid2haircut.render import numba_tiles as nt
+
+    rng = np.random.default_rng(5)
+    G = 3 * 256 + 17
+    means = rng.uniform(-20, 80, (G, 2))
+    a, b = rng.uniform(0.05, 30, G), rng.uniform(0.05, 3, G)
+    ang = rng.uniform(0, np.pi, G)
+    c, s = np.cos(ang), np.sin(ang)
+    covs = np.stack([a * c * c + b * s * s, (a - b) * c * s, a * s * s + b * c * c], 1)
+    covs[::37, 1] = np.sqrt(covs[::37, 0] * covs[::37, 2])  # degenerate (determinant 0)
+    means[::41, 0] = np.nan
+    covs[::43, 2] = np.inf
+    covs[::47, 0] = -1.0
+    valid = rng.random(G) > 0.1
+    height, width, power_min, cols = 47, 61, -4.5, 4
+    wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
+    rows = nt.gaussian_windows(means, covs, valid, height, width, power_min, cols, 8, wint, wflt)
+    ref = _windows_reference(means, covs, valid, height, width, power_min, cols)
+    drawn = 0
+    for g, (hz, u_lo, ncols, need, slope, v0) in enumerate(ref):
+        assert wint[g, nt.W_NCOL] == ncols, g
+        if ncols > 0:
+            drawn += 1
+            assert (wint[g, nt.W_HZ], wint[g, nt.W_ULO]) == (hz, u_lo), g
+            assert wint[g, nt.W_HGT] == (need + rows - 1) // rows * rows, g
+            assert wflt[g, nt.W_SLOPE].tobytes() == slope.tobytes() and wflt[g, nt.W_V0].tobytes() == v0.tobytes(), g
+    assert G // 4 < drawn < G - G // 10  # both kinds are tested
