@@ -49,21 +49,35 @@ def test_log1m_relative_error(dtype, tol):
 
 
 @functools.cache
-def _lines_for(compaction):
-    """A numba loop calling line16 compiled with ``compaction`` once per row (built once each)."""
-    line16 = numba_simd.make_line16(compaction)
+def _lines_for(compaction, lanes=16):
+    """A numba loop calling line16 (``lanes`` 16) or line8 (8: at lane0s[j] on row j) compiled with
+    ``compaction`` once per row (built once each)."""
+    line = numba_simd.make_line16(compaction, lanes)
+
+    if lanes == 16:
+        @numba.njit
+        def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
+                  keep_any, prs, si, e_al, e_la, e_p, lane0s):
+            n = 0
+            for j in range(rows.shape[0]):
+                n += line(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
+                          np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
+                          np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+            return n
+
+        return lines
 
     @numba.njit
-    def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
-              keep_any, prs, si, e_al, e_la, e_p):
+    def lines8(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
+               keep_any, prs, si, e_al, e_la, e_p, lane0s):
         n = 0
         for j in range(rows.shape[0]):
-            n += line16(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
-                        np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
-                        np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+            n += line(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
+                      np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
+                      np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n), np.uint64(lane0s[j]))
         return n
 
-    return lines
+    return lines8
 
 
 def test_compaction_choice():
@@ -81,19 +95,23 @@ def test_compaction_choice():
     assert numba_simd.USE_LINE16 == (numba_simd.COMPACTION != "lanes")
     with pytest.raises(ValueError, match="compaction"):
         numba_simd.make_line16("gather")
+    with pytest.raises(ValueError, match="lanes"):
+        numba_simd.make_line16("lanes", 4)
 
 
 @pytest.mark.parametrize("compaction", numba_simd.available_compactions())
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 @pytest.mark.parametrize("keep_any", [True, False])
-def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compaction):
-    """line16, with each compaction this CPU can run, against the walk's scalar formulas evaluated
-    operation by operation in numpy (IEEE rounding per operation, as the numba loop): the same
-    z_ref update (none without it), the same kept lanes, bit for bit the same power and head
+@pytest.mark.parametrize("lanes", [16, 8])
+def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compaction, lanes):
+    """line16 and line8, with each compaction this CPU can run, against the walk's scalar formulas
+    evaluated operation by operation in numpy (IEEE rounding per operation, as the numba loop): the
+    same z_ref update (none without it), the same kept lanes, bit for bit the same power and head
     factor, the pixel indices, then zeros in the line's remaining slots; lines with every, no and
     some lanes kept, the head in front (factor 0), level with (in between) and behind (1), and +inf
-    head depth."""
-    _lines = _lines_for(compaction)
+    head depth. line8 evaluates lanes lane0 .. lane0 + 7 of each line (lane0 0 or 8) and leaves the
+    others (their z_ref included) as they are."""
+    _lines = _lines_for(compaction, lanes)
     rng = np.random.default_rng(1)
     c = lambda x: np.asarray(x, dtype)  # noqa: E731
     J = 300
@@ -118,35 +136,38 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compact
     zref = c(np.full(hl.shape, np.inf))
     zref[::3] = c(0.5)
     zref0 = zref.copy()
+    lane0s = rng.choice([0, 8], J).astype(np.uint64) if lanes == 8 else np.zeros(J, np.uint64)
+    lane0s[0] = 0
     n = _lines(qa, qb, vlo, vhi, hl, zref, True, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si,
-               e_al, e_la, e_p)
+               e_al, e_la, e_p, lane0s)
     unchanged = zref0.copy()
     assert _lines(qa, qb, vlo, vhi, hl, unchanged, False, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any,
-                  prs, si, e_al.copy(), e_la.copy(), e_p.copy()) == n
+                  prs, si, e_al.copy(), e_la.copy(), e_p.copy(), lane0s) == n
     assert np.array_equal(unchanged, zref0)  # without z_ref: not touched
     ref_p, ref_f, ref_pix = [], [], []
     ref_zref = zref0.copy()
     for j in range(J):
         b = int(bases[j])
-        win = (rows[j] >= vlo[j]) & (rows[j] <= vhi[j])
+        evaluated = (np.arange(16) >= lane0s[j]) & (np.arange(16) < lane0s[j] + lanes)
+        win = (rows[j] >= vlo[j]) & (rows[j] <= vhi[j]) & evaluated
         ref_zref[b:b + 16] = np.where(win & (zgs[j] < ref_zref[b:b + 16]), zgs[j], ref_zref[b:b + 16])
         dv = dvs[j]
         p = logop - half * (qa[j] + dv * (qb[j] + qv * dv))
         x = (hl[int(bases[j]):int(bases[j]) + 16] - z) * big
         x = np.where(c(0) > x, c(0), x)
         f = np.where(c(1) < x, c(1), x)
-        kept = (rows[j] >= vlo[j]) & (rows[j] <= vhi[j]) & (p > cut) & (f > 0) & keep_any
+        kept = win & (p > cut) & (f > 0) & keep_any
         ref_p.append(p[kept])
         ref_f.append(f[kept])
         ref_pix.append((prs[j] + np.arange(16) * si)[kept])
-        assert kept.all() == (j == 0 and keep_any) or j > 0
+        assert kept[evaluated].all() == (j == 0 and keep_any) or j > 0
     ref_p, ref_f, ref_pix = np.concatenate(ref_p), np.concatenate(ref_f), np.concatenate(ref_pix)
     assert np.array_equal(zref, ref_zref) and not np.array_equal(zref, zref0)
-    assert n == ref_p.size and (n > 200 if keep_any else n == 0)
+    assert n == ref_p.size and (n > 200 * lanes // 16 if keep_any else n == 0)
     assert np.array_equal(e_al[:n], ref_p) and np.array_equal(e_la[:n], ref_f) and np.array_equal(e_p[:n], ref_pix)
-    last = n - int(np.count_nonzero(kept))  # where the last line's 16 slots begin
+    last = n - int(np.count_nonzero(kept))  # where the last line's slots begin
     for out in (e_al, e_la, e_p):  # they hold its kept lanes, then zeros (float64: up to there); nothing beyond
-        assert np.all((out[n:last + 16] == 0) | (out[n:last + 16] == -9)) and np.all(out[last + 16:] == -9)
+        assert np.all((out[n:last + lanes] == 0) | (out[n:last + lanes] == -9)) and np.all(out[last + lanes:] == -9)
         assert out[n] == 0
     if keep_any:
         assert 0 < np.count_nonzero((ref_f > 0) & (ref_f < 1)) and np.count_nonzero(ref_f == 1) > 50

@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 
 from vid2haircut.render.numba_math import lane_cast
-from vid2haircut.render.numba_simd import line16
+from vid2haircut.render.numba_simd import line8, line16
 from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart, vstart32
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
@@ -47,7 +47,8 @@ L_DU, L_QA, L_QB = range(3)
 
 @njit(**_INL)
 def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
-    """Instance g in the tile: (lay, first line, last line, mean v - tile v0, q_vv, u0); fills
+    """Instance g in the tile: (lay, first line, last line, mean v - tile v0, q_vv, the lanes its
+    line needs: 0 (lanes 0-7), 8 (lanes 8-15) or -1 (both halves)); fills
     the lane arrays (``lane``, and vlo / vhi [L] int32: the window rows of each lane, tile
     relative; FAR / -FAR outside the window). Lines are tile relative; last < first when the
     window misses the tile."""
@@ -66,7 +67,7 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
     sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
     mvr = mv - lane_cast(tv0, mv)
     if ub < ua:
-        return lay, 0, -1, mvr, qv
+        return lay, 0, -1, mvr, qv, -1
     va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
     lo = max(min(va, vb), tv0) - tv0
     hi = min(max(va, vb) + h - 1, tv1) - tv0
@@ -84,7 +85,8 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
         lane[L_DU, i] = d
         lane[L_QA, i] = qu * d * d
         lane[L_QB, i] = (qxy + qxy) * d
-    return lay, lo, hi, mvr, qv
+    lanes0 = 0 if ub - tu0 < 8 else (8 if ua - tu0 >= 8 else -1)
+    return lay, lo, hi, mvr, qv, lanes0
 
 
 @njit(**_INL)
@@ -130,7 +132,7 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     for k in range(i0, i1):
         e_range[k, 0] = n
         g = sorted_g[k]
-        lay, lo, hi, mvr, qv = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi)
+        lay, lo, hi, mvr, qv, lanes0 = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi)
         z, zg = gpar[g, G_Z], zs[g]
         keep_any = qv > zero  # else degenerate: z_ref only
         # pixel index in the tile of lane i of line r: r * sr + i * si
@@ -140,9 +142,14 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
             dv = lane_cast(r, mvr) - mvr
             base = np.uint64((lay * L + r) * L)
             pr = r * sr
-            if compress:  # AVX-512 / AVX2: the line as explicit 16-lane vector code, the same result as the loops
-                n += line16(lane[L_QA], lane[L_QB], vlo, vhi, hl, zref2, with_zref, zg, base, rr, dv, qv, logop, half,
-                            cut, z, big, keep_any, np.int32(pr), np.int32(si), e_al, e_la, e_p, np.uint64(n))
+            if compress:  # AVX-512 / AVX2: the line as explicit vector code, the same result as the loops
+                if lanes0 >= 0:  # the window's lanes all in one half: 8 lanes (line16's work halved)
+                    n += line8(lane[L_QA], lane[L_QB], vlo, vhi, hl, zref2, with_zref, zg, base, rr, dv, qv, logop,
+                               half, cut, z, big, keep_any, np.int32(pr), np.int32(si), e_al, e_la, e_p,
+                               np.uint64(n), np.uint64(lanes0))
+                else:
+                    n += line16(lane[L_QA], lane[L_QB], vlo, vhi, hl, zref2, with_zref, zg, base, rr, dv, qv, logop,
+                                half, cut, z, big, keep_any, np.int32(pr), np.int32(si), e_al, e_la, e_p, np.uint64(n))
                 continue
             if with_zref:
                 for i in range(L):

@@ -100,12 +100,12 @@ def _splat(builder, value, n: int = LANES):
 
 
 def _lane_store(builder, vec, bits, ptr, off):
-    """The ``"lanes"`` compaction: 16 zeros, then each lane at the cursor (its value if kept, else
-    0), which only the kept lanes advance."""
+    """The ``"lanes"`` compaction: as many zeros as ``vec`` has lanes, then each lane at the cursor
+    (its value if kept, else 0), which only the kept lanes advance."""
     zero = _ir.Constant(vec.type, None)
     builder.store(zero, builder.bitcast(builder.gep(ptr, [off], inbounds=True), vec.type.as_pointer()), align=4)
     pos = off
-    for i in range(LANES):
+    for i in range(vec.type.count):
         lane = _ir.Constant(_I32, i)
         bit = builder.extract_element(bits, lane)
         value = builder.select(bit, builder.extract_element(vec, lane), _ir.Constant(vec.type.element, None))
@@ -115,7 +115,7 @@ def _lane_store(builder, vec, bits, ptr, off):
 
 
 def _permute_store(builder, vec, bits, ptr, off):
-    """The ``"permute"`` compaction (AVX2, 32-bit lanes): per half of 8 lanes, the kept ones moved
+    """The ``"permute"`` compaction (AVX2, 32-bit lanes): per group of 8 lanes, the kept ones moved
     to the front by one vpermps / vpermd (the order from :data:`_PERM_LUT` at the 8-bit mask), the
     rest zeroed, one store of 8 slots."""
     module = builder.module
@@ -134,7 +134,7 @@ def _permute_store(builder, vec, bits, ptr, off):
     ctpop = cgutils.get_or_insert_function(module, _ir.FunctionType(_I64, [_I64]), "llvm.ctpop.i64")
     iota = _ir.Constant(i8x, list(range(8)))
     pos = off
-    for part in range(2):
+    for part in range(vec.type.count // 8):
         idx = _ir.Constant(i8x, [part * 8 + i for i in range(8)])
         v = builder.shuffle_vector(vec, _ir.Constant(vec.type, _ir.Undefined), idx)
         b = builder.shuffle_vector(bits, _ir.Constant(bits.type, _ir.Undefined), idx)
@@ -153,14 +153,14 @@ def _vector_compress_store(builder, vec, bits, ptr, off):
     store (64-bit lanes as two halves of 8, one 512-bit register each)."""
     elt = vec.type.element
     kind, width = _kind(elt)
-    lanes = LANES if width <= 32 else LANES // 2
+    lanes = min(vec.type.count, 16 if width <= 32 else 8)
     vt, bt = _ir.VectorType(elt, lanes), _ir.VectorType(_ir.IntType(1), lanes)
     pack = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(vt, [vt, bt, vt]),
                                           f"llvm.experimental.vector.compress.v{lanes}{kind}")
     ctpop = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_I64, [_I64]), "llvm.ctpop.i64")
     pos = off
-    for part in range(LANES // lanes):
-        if lanes == LANES:
+    for part in range(vec.type.count // lanes):
+        if lanes == vec.type.count:
             v, b = vec, bits
         else:
             idx = _ir.Constant(_ir.VectorType(_I32, lanes), [part * lanes + i for i in range(lanes)])
@@ -174,10 +174,10 @@ def _vector_compress_store(builder, vec, bits, ptr, off):
 
 
 def _compress_store(builder, vec, bits, ptr, off, compaction):
-    """Store the lanes of ``vec`` (<16 x T>) whose ``bits`` (<16 x i1>) are set, in lane order, at
-    ptr[off], by ``compaction`` (module docstring); writes at most 16 slots from off on (the kept
-    lanes, then zeros; halves of 8 reach off + (kept of the first half) + 8 only). Returns off +
-    the kept count (i64)."""
+    """Store the lanes of ``vec`` (<n x T>, n = 16 or 8) whose ``bits`` (<n x i1>) are set, in lane
+    order, at ptr[off], by ``compaction`` (module docstring); writes at most n slots from off on (the
+    kept lanes, then zeros; groups of 8 reach off + (kept before the last group) + 8 only). Returns
+    off + the kept count (i64)."""
     if compaction == "compress":
         return _vector_compress_store(builder, vec, bits, ptr, off)
     if compaction == "permute" and _kind(vec.type.element)[1] == 32:
@@ -189,29 +189,42 @@ def _data(context, builder, aryty, ary):
     return context.make_array(aryty)(context, builder, ary).data
 
 
-def _load16(builder, ptr, off=None):
-    """<16 x T> from ptr[off:off + 16] (unaligned)."""
-    p = ptr if off is None else builder.gep(ptr, [off], inbounds=True)
-    return builder.load(builder.bitcast(p, _ir.VectorType(ptr.type.pointee, LANES).as_pointer()), align=4)
+def _load(builder, ptr, off, n):
+    """<n x T> from ptr[off:off + n] (unaligned)."""
+    p = builder.gep(ptr, [off], inbounds=True)
+    return builder.load(builder.bitcast(p, _ir.VectorType(ptr.type.pointee, n).as_pointer()), align=4)
 
 
-def make_line16(compaction: str = COMPACTION):
+def make_line16(compaction: str = COMPACTION, lanes: int = LANES):
     """The :func:`line16` intrinsic compiled with ``compaction`` (one of
-    :func:`available_compactions`; tests build each)."""
+    :func:`available_compactions`; tests build each); ``lanes=8``: the :func:`line8` intrinsic."""
     if compaction not in COMPACTIONS:
         raise ValueError(f"unknown compaction {compaction!r}")
+    if lanes == LANES:
+        @intrinsic
+        def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big,
+                   keep_any, pr, si, e_al, e_la, e_p, n):
+            return _line16_typing(compaction, LANES, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p)
+
+        return line16
+    if lanes != 8:
+        raise ValueError(f"lanes must be 16 or 8, got {lanes}")
 
     @intrinsic
-    def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big,
-               keep_any, pr, si, e_al, e_la, e_p, n):
-        return _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p)
+    def line8(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big,
+              keep_any, pr, si, e_al, e_la, e_p, n, lane0):
+        return _line16_typing(compaction, 8, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p)
 
-    return line16
+    return line8
 
 
-def _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
+def _line16_typing(compaction, nl, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
     """One line of the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`) in 16 lanes:
     update z_ref, append the line's kept elements at e_*[n:] and return how many (int64).
+    ``nl`` = 8: lanes lane0 .. lane0 + 7 of the line only (``lane0``, uint64, a last argument after
+    ``n``: 0 or 8), the others left as they are (for lines whose window lanes all lie in one half:
+    the same elements and z_ref as line16 gives, since it keeps no lane and changes no z_ref
+    outside the window).
 
     Lane i (u = tile u0 + i) of line ``rr`` (tile relative, int32) is in the window when
     vlo[i] <= rr <= vhi[i]; there, with ``with_zref``, zref[base + i] := zg if zg < zref[base + i]
@@ -220,37 +233,40 @@ def _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
     f = min(max((hl[base + i] - z) big, 0), 1); kept when in the window, p > cut, f > 0 and
     ``keep_any``; its element is (pixel pr + i si (int32), p, f) into (e_p, e_al, e_la).
     qa / qb / hl / zref / e_al / e_la and the float scalars share one float dtype (float32 or
-    float64); vlo / vhi / e_p are int32; base and n uint64. Writes at most 16 slots of each output
-    from n on (the kept lanes, then zeros), packed by ``compaction``.
+    float64); vlo / vhi / e_p are int32; base and n uint64. Writes at most ``nl`` slots of each
+    output from n on (the kept lanes, then zeros), packed by ``compaction``.
     """
     ft = qa.dtype
+    extra = (types.uint64,) if nl != LANES else ()
     sig = types.int64(qa, qb, vlo, vhi, hl, zref, types.boolean, ft, types.uint64, types.int32, ft, ft, ft, ft, ft, ft,
-                      ft, types.boolean, types.int32, types.int32, e_al, e_la, e_p, types.uint64)
+                      ft, types.boolean, types.int32, types.int32, e_al, e_la, e_p, types.uint64, *extra)
 
     def codegen(context, builder, signature, args):
         (qa_v, qb_v, lo_v, hi_v, hl_v, zr_v, wz_v, zg_v, base_v, rr_v, dv_v, qv_v, logop_v, half_v, cut_v, z_v, big_v,
-         keep_v, pr_v, si_v, al_v, la_v, p_v, n_v) = args
+         keep_v, pr_v, si_v, al_v, la_v, p_v, n_v) = args[:24]
+        lane0 = args[24] if nl != LANES else _ir.Constant(_I64, 0)
         aty = signature.args
-        qa_ = _load16(builder, _data(context, builder, aty[0], qa_v))
-        qb_ = _load16(builder, _data(context, builder, aty[1], qb_v))
-        lo_ = _load16(builder, _data(context, builder, aty[2], lo_v))
-        hi_ = _load16(builder, _data(context, builder, aty[3], hi_v))
-        hl_ = _load16(builder, _data(context, builder, aty[4], hl_v), base_v)
+        qa_ = _load(builder, _data(context, builder, aty[0], qa_v), lane0, nl)
+        qb_ = _load(builder, _data(context, builder, aty[1], qb_v), lane0, nl)
+        lo_ = _load(builder, _data(context, builder, aty[2], lo_v), lane0, nl)
+        hi_ = _load(builder, _data(context, builder, aty[3], hi_v), lane0, nl)
+        row = builder.add(base_v, lane0)  # the lanes' first slot in hl and zref
+        hl_ = _load(builder, _data(context, builder, aty[4], hl_v), row, nl)
         zero = _ir.Constant(qa_.type, None)
-        one = _splat(builder, _ir.Constant(qa_.type.element, 1.0))
+        one = _splat(builder, _ir.Constant(qa_.type.element, 1.0), nl)
         # p = logop - half * (qa + dv * (qb + qv * dv)), operation by operation as the scalar code
-        dvs = _splat(builder, dv_v)
-        t = builder.fadd(qb_, builder.fmul(_splat(builder, qv_v), dvs))
+        dvs = _splat(builder, dv_v, nl)
+        t = builder.fadd(qb_, builder.fmul(_splat(builder, qv_v, nl), dvs))
         t = builder.fadd(qa_, builder.fmul(dvs, t))
-        p = builder.fsub(_splat(builder, logop_v), builder.fmul(_splat(builder, half_v), t))
+        p = builder.fsub(_splat(builder, logop_v, nl), builder.fmul(_splat(builder, half_v, nl), t))
         # f = min(max((hl - z) * big, 0), 1) with numba's max(a, b) = b if b > a else a (min: b < a)
-        x = builder.fmul(builder.fsub(hl_, _splat(builder, z_v)), _splat(builder, big_v))
+        x = builder.fmul(builder.fsub(hl_, _splat(builder, z_v, nl)), _splat(builder, big_v, nl))
         x = builder.select(builder.fcmp_ordered(">", zero, x), zero, x)
         f = builder.select(builder.fcmp_ordered("<", one, x), one, x)
-        rrs = _splat(builder, rr_v)
+        rrs = _splat(builder, rr_v, nl)
         inside = builder.and_(builder.icmp_signed(">=", rrs, lo_), builder.icmp_signed("<=", rrs, hi_))
         with builder.if_then(wz_v):
-            zptr = builder.bitcast(builder.gep(_data(context, builder, aty[5], zr_v), [base_v], inbounds=True),
+            zptr = builder.bitcast(builder.gep(_data(context, builder, aty[5], zr_v), [row], inbounds=True),
                                    qa_.type.as_pointer())
             zr = builder.load(zptr, align=4)
             # zg where inside and zg < zr, else zr, as minnum(zg + (inside ? 0 : +inf), zr): the same value,
@@ -259,16 +275,18 @@ def _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
             # a select of the loaded zr would become a masked store (vmaskmovps on AVX2), from which the
             # next line's load of the same z_ref row cannot take its value (measured: the walk 5 ms
             # slower single-thread on an AMD Zen 3)
-            inf = _splat(builder, _ir.Constant(qa_.type.element, float("inf")))
-            t = builder.fadd(_splat(builder, zg_v), builder.select(inside, zero, inf))
+            inf = _splat(builder, _ir.Constant(qa_.type.element, float("inf")), nl)
+            t = builder.fadd(_splat(builder, zg_v, nl), builder.select(inside, zero, inf))
             fmin = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(qa_.type, [qa_.type, qa_.type]),
-                                                  f"llvm.minnum.v{LANES}{_kind(qa_.type.element)[0]}")
+                                                  f"llvm.minnum.v{nl}{_kind(qa_.type.element)[0]}")
             builder.store(builder.call(fmin, [t, zr], fastmath=("nnan",)), zptr, align=4)
-        kept = builder.and_(inside, builder.fcmp_ordered(">", p, _splat(builder, cut_v)))
+        kept = builder.and_(inside, builder.fcmp_ordered(">", p, _splat(builder, cut_v, nl)))
         kept = builder.and_(kept, builder.fcmp_ordered(">", f, zero))
         kept = builder.select(keep_v, kept, _ir.Constant(kept.type, None))
-        iota = _ir.Constant(_ir.VectorType(_I32, LANES), list(range(LANES)))
-        pix = builder.add(_splat(builder, pr_v), builder.mul(iota, _splat(builder, si_v)))
+        # pixel pr + i si of lane i = lane0 + j (int32, wrapping: the same value in any order)
+        iota = builder.add(_ir.Constant(_ir.VectorType(_I32, nl), list(range(nl))),
+                           _splat(builder, builder.trunc(lane0, _I32), nl))
+        pix = builder.add(_splat(builder, pr_v, nl), builder.mul(iota, _splat(builder, si_v, nl)))
         _compress_store(builder, p, kept, _data(context, builder, aty[20], al_v), n_v, compaction)
         _compress_store(builder, f, kept, _data(context, builder, aty[21], la_v), n_v, compaction)
         end = _compress_store(builder, pix, kept, _data(context, builder, aty[22], p_v), n_v, compaction)
@@ -280,3 +298,7 @@ def _line16_typing(compaction, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
 line16 = make_line16()
 """One line of the window walk in 16 lanes, compiled with this machine's :data:`COMPACTION`
 (:func:`_line16_typing` describes its arguments)."""
+line8 = make_line16(lanes=8)
+"""Lanes lane0 .. lane0 + 7 of a line (an argument after ``n``): :func:`line16`'s work halved, for
+the lines of windows whose columns in the tile all lie in one half (about half the lines of the
+benchmark scene; on AVX2 a 16-lane line is two registers of 8)."""
