@@ -7,7 +7,8 @@ vector of L lanes (lane i is u = u0 + i): the window test, z_ref and the power a
 every lane, and the lanes inside the ellipse that the head does not hide are then appended to
 the tile's element list. Where the CPU has AVX-512 or AVX2 a line is one call of
 :func:`vid2haircut.render.numba_simd.line16` (explicit 16-lane vector code with compress or
-permute instructions); elsewhere numba loops over the lanes and appends them with a branch-free
+permute instructions; :func:`~vid2haircut.render.numba_simd.line8`, 8 lanes, when the window's
+lanes in the tile all lie in one half, about half the lines); elsewhere numba loops over the lanes and appends them with a branch-free
 loop from the first to the last kept one (the same elements). A thin strand Gaussian crosses a tile
 in a few lines (its minor extent), so the walk costs a few vector operations per line instead
 of a loop of data-dependent length per pixel column, whose mispredicted exits were most of the
