@@ -8,7 +8,9 @@ instructions of work. :func:`line16` emits that work directly as ``<16 x float>`
 ``<16 x double>``) operations, in the same order and with the same rounding as the scalar numba
 code (no fast-math flags: no fused multiply-adds, the same comparisons and selects as numba's
 ``min`` / ``max``), so the elements it appends are bit for bit those of the loop
-(tests/test_render_math.py, tests/test_render_backends.py).
+(tests/test_render_math.py, tests/test_render_backends.py). :func:`line8` does the same for 8 of
+the 16 lanes, for the lines whose window lanes all lie in one half of the tile (about half the
+lines of a frame; on AVX2 a 16-lane line is two registers of 8, so it halves their work).
 
 The kept lanes are packed to the front and stored with plain vector stores: 16 slots from the
 cursor hold the kept lanes, then zeros (that the next line overwrites). How they are packed
