@@ -9,7 +9,7 @@ forward+backward of ``render_bench.py``'s scene and loss (silhouette + normalise
 direction) for each in turn: per round, ``--repeat`` calls of each, alternating, best of each.
 Both sides compile their numba kernels once (the base's into the temporary folder's cache).
 
-    .venv/bin/python benchmarks/render_ab.py --base d326216 [--strands 4000] [--size 256]
+    .venv/bin/python benchmarks/render_ab.py --base d326216 [--strands 4000] [--size 256] [--frames 1]
                                              [--threads N] [--rounds 3] [--repeat 15]
 """
 
@@ -73,6 +73,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="the commit to compare with (any git revision)")
     add_scene_args(ap)
+    ap.add_argument("--frames", type=int, default=1, help="frames per call (Stage 2 renders 6 keyframes in one)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=15, help="calls of each per round (the best is printed)")
     args = ap.parse_args(argv)
@@ -83,12 +84,13 @@ def main(argv=None) -> int:
         sys.path.insert(0, tmp)
         base = importlib.import_module(f"{BASE_NAME}.render").render_strands
         present = importlib.import_module("vid2haircut.render").render_strands
-        pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
+        pts, K, E, hd = setup(args.strands, args.size, args.frames, "cpu")
         pts.requires_grad_(True)
         call = {"base": lambda: forward_backward(base, pts, K, E, hd, args.size),
                 "present": lambda: forward_backward(present, pts, K, E, hd, args.size)}
         (a, ga), (b, gb) = call["base"](), call["present"]()  # also compiles both
-        print(f"{args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads; "
+        print(f"{args.frames} x {args.strands} strands x 32 points at {args.size}x{args.size}, "
+              f"{torch.get_num_threads()} threads; "
               f"base {short} against the present code: renders and gradients "
               f"{'identical' if same(a, ga, b, gb) else 'DIFFER'}")
         for r in range(args.rounds):
