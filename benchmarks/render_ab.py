@@ -73,7 +73,6 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--base", required=True, help="the commit to compare with (any git revision)")
     add_scene_args(ap)
-    ap.add_argument("--frames", type=int, default=1, help="frames per call (Stage 2 renders 6 keyframes in one)")
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=15, help="calls of each per round (the best is printed)")
     args = ap.parse_args(argv)

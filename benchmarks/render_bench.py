@@ -106,6 +106,7 @@ def add_scene_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--strands", type=int, default=4000)
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (the kernels follow it)")
+    ap.add_argument("--frames", type=int, default=1, help="frames per call (Stage 2 renders 6 keyframes in one)")
 
 
 def scene_call(args: argparse.Namespace):
@@ -113,7 +114,7 @@ def scene_call(args: argparse.Namespace):
     no-argument function doing one numba-backend :func:`forward_backward` of it."""
     if args.threads:
         torch.set_num_threads(args.threads)
-    pts, K, E, hd = setup(args.strands, args.size, 1, "cpu")
+    pts, K, E, hd = setup(args.strands, args.size, args.frames, "cpu")
     pts.requires_grad_(True)
     return lambda: forward_backward(pts, K, E, hd, args.size, "numba")
 

@@ -16,7 +16,7 @@ The images of the stubbed runs are wrong (zeros); only their times mean anything
 ``scatter_add_`` ceiling of the same scene (``render_bench.py``), this says how much time a
 compositing model may take at most to stay within a given multiple of the ceiling.
 
-    .venv/bin/python benchmarks/render_floor.py [--strands 4000] [--size 256] [--repeat 15] [--rounds 3]
+    .venv/bin/python benchmarks/render_floor.py [--strands 4000] [--size 256] [--frames 1] [--repeat 15] [--rounds 3]
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ def main(argv=None) -> int:
     call = scene_call(args)
     real = numba_kernels.composite_forward, numba_kernels.composite_backward
     variants = {"full": real, "walk": (walk_only, _no_backward), "none": (_no_forward, _no_backward)}
-    print(f"{args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads; "
+    print(f"{args.frames} x {args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads; "
           f"forward+backward ms, best of {args.repeat}\n")
     print("| round | " + " | ".join(variants) + " |")
     print("|---|" + "---|" * len(variants))

@@ -6,7 +6,7 @@ visibility and gradient sums), runs forward+backward of the benchmark scene of
 kernel, the best and the median milliseconds, and what is left of the whole call (torch's image
 channels and loss, Python).
 
-    .venv/bin/python benchmarks/render_kernels.py [--strands 4000] [--size 256] [--calls 20] [--threads N]
+    .venv/bin/python benchmarks/render_kernels.py [--strands 4000] [--size 256] [--frames 1] [--calls 20] [--threads N]
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
         for mod, name, fn in undo:
             setattr(mod, name, fn)
     ms = lambda v: 1e3 * float(v)  # noqa: E731
-    print(f"{args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads, "
+    print(f"{args.frames} x {args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads, "
           f"{args.calls} calls: whole call best {ms(min(totals)):.1f} ms, median {ms(np.median(totals)):.1f} ms\n")
     print("| kernel | best ms | median ms |")
     print("|---|---|---|")
