@@ -73,6 +73,29 @@ def tile_head_max(head, has_head, nframes, width, height, tile):
     return out
 
 
+@njit(cache=True, inline="always")
+def _tile_box(g, wint, wflt, width, height, tile):
+    """Tile range (x0, x1, y0, y1), inclusive, that window g may touch; empty (0, -1, 0, -1) when it
+    touches no pixel (not drawn, non-finite line, or off the image). Selects rather than branches:
+    whether a window is horizontal, drawn or on the image is unpredictable from one to the next."""
+    ncol = wint[g, W_NCOL]
+    sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
+    ok = (ncol > 0) & math.isfinite(sl) & math.isfinite(v0)
+    sl, v0 = (sl, v0) if ok else (np.float32(0.0), np.float32(0.0))
+    hz = wint[g, W_HZ] != 0
+    su = width if hz else height
+    sv = height if hz else width
+    ua = wint[g, W_ULO]
+    ub = min(ua + ncol - 1, su - 1)
+    va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
+    vlo = max(min(va, vb), 0)
+    vhi = min(max(va, vb) + wint[g, W_HGT] - 1, sv - 1)
+    ok = ok & (ub >= ua) & (vhi >= vlo)
+    u0, u1, v0_, v1 = ua // tile, ub // tile, vlo // tile, vhi // tile
+    bx0, bx1, by0, by1 = (u0, u1, v0_, v1) if hz else (v0_, v1, u0, u1)
+    return (bx0, bx1, by0, by1) if ok else (0, -1, 0, -1)
+
+
 @njit(cache=True, parallel=True)
 def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
     """List the instances of every tile.
@@ -93,48 +116,47 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
     G = wint.shape[0]
     ntx = (width + tile - 1) // tile
     nty = (height + tile - 1) // tile
-    box = np.zeros((G, 4), np.int64)
-    cnt = np.zeros(G, np.int64)
+    box = np.empty((G, 4), np.int64)
+    cnt = np.empty(G, np.int64)
+    NT = nframes * nty * ntx
     for g in prange(G):
-        ncol = wint[g, W_NCOL]
-        sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
-        if ncol <= 0 or not (math.isfinite(sl) and math.isfinite(v0)):
-            continue
-        hz = wint[g, W_HZ] != 0
-        su = width if hz else height
-        sv = height if hz else width
-        ua = wint[g, W_ULO]
-        ub = min(ua + ncol - 1, su - 1)
-        if ub < ua:
-            continue
-        va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
-        vlo = max(min(va, vb), 0)
-        vhi = min(max(va, vb) + wint[g, W_HGT] - 1, sv - 1)
-        if vhi < vlo:
-            continue
-        if hz:
-            box[g, 0], box[g, 1], box[g, 2], box[g, 3] = ua // tile, ub // tile, vlo // tile, vhi // tile
+        bx0, bx1, by0, by1 = _tile_box(g, wint, wflt, width, height, tile)
+        box[g, 0], box[g, 1], box[g, 2], box[g, 3] = bx0, bx1, by0, by1
+        zg, row0 = z[g], frame[g] * nty
+        if bx1 - bx0 <= 1 and by1 - by0 <= 1:  # at most 2 x 2 tiles (most windows): no loop to mispredict
+            x1 = bx0 + 1 <= bx1
+            y1 = by0 + 1 <= by1
+            any_ = bx0 <= bx1
+            t00 = (row0 + by0) * ntx + bx0
+            t00 = t00 if any_ else 0
+            t01 = t00 + 1 if x1 else t00
+            t10 = t00 + ntx if y1 else t00
+            t11 = t10 + 1 if x1 else t10
+            cnt[g] = (np.int64(any_ & (not zg >= hmax[t00])) + np.int64(x1 & (not zg >= hmax[t01]))
+                      + np.int64(y1 & (not zg >= hmax[t10])) + np.int64(x1 & y1 & (not zg >= hmax[t11])))
         else:
-            box[g, 0], box[g, 1], box[g, 2], box[g, 3] = vlo // tile, vhi // tile, ua // tile, ub // tile
-        c = 0
-        for ty in range(box[g, 2], box[g, 3] + 1):
-            for tx in range(box[g, 0], box[g, 1] + 1):
-                c += not z[g] >= hmax[(frame[g] * nty + ty) * ntx + tx]
-        cnt[g] = c
+            c = 0
+            for ty in range(by0, by1 + 1):
+                for tx in range(bx0, bx1 + 1):
+                    c += not zg >= hmax[(row0 + ty) * ntx + tx]
+            cnt[g] = c
     gstart = np.zeros(G + 1, np.int64)
     for g in range(G):
         gstart[g + 1] = gstart[g] + cnt[g]
     n = gstart[G]
     inst_tile = np.empty(n, np.int64)
     for g in prange(G):
-        j = gstart[g]
-        for ty in range(box[g, 2], box[g, 3] + 1):
-            for tx in range(box[g, 0], box[g, 1] + 1):
-                t = (frame[g] * nty + ty) * ntx + tx
-                if j < gstart[g + 1] and not z[g] >= hmax[t]:
+        j, j1 = gstart[g], gstart[g + 1]
+        if j == j1:
+            continue
+        bx0, bx1, by0, by1 = box[g, 0], box[g, 1], box[g, 2], box[g, 3]
+        zg, row0 = z[g], frame[g] * nty
+        for ty in range(by0, by1 + 1):
+            for tx in range(bx0, bx1 + 1):
+                t = (row0 + ty) * ntx + tx
+                if j < j1 and not zg >= hmax[t]:
                     inst_tile[j] = t
                     j += 1
-    NT = nframes * nty * ntx
     # counting sort of the instances by tile, stable (Gaussian order inside a tile), in parallel over
     # CH chunks of instances: per-chunk tile counts, then each chunk's first slot in every tile
     CH = 64
