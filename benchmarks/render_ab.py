@@ -31,7 +31,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from render_bench import add_scene_args, setup  # noqa: E402  (the benchmark scene)
+from render_bench import add_scene_args, forward_backward, setup  # noqa: E402  (the benchmark scene, its loss)
 
 REPO = Path(__file__).resolve().parents[1]
 BASE_NAME = "v2h_base"
@@ -53,14 +53,6 @@ def extract_base(commit: str, dest: Path) -> str:
             text = tf.extractfile(member).read().decode()
             out.write_text(re.sub(r"\bvid2haircut\b", BASE_NAME, text))
     return short
-
-
-def forward_backward(render, pts, K, E, hd, size):
-    """One forward+backward with ``render_bench.py``'s loss; returns (render, d loss / d points)."""
-    out = render(pts, K, E, size, size, head_depth=hd, backend="numba")
-    (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
-    grad, pts.grad = pts.grad, None
-    return out, grad
 
 
 def same(a, ga, b, gb) -> bool:
@@ -85,8 +77,8 @@ def main(argv=None) -> int:
         present = importlib.import_module("vid2haircut.render").render_strands
         pts, K, E, hd = setup(args.strands, args.size, args.frames, "cpu")
         pts.requires_grad_(True)
-        call = {"base": lambda: forward_backward(base, pts, K, E, hd, args.size),
-                "present": lambda: forward_backward(present, pts, K, E, hd, args.size)}
+        call = {"base": lambda: forward_backward(pts, K, E, hd, args.size, "numba", base),
+                "present": lambda: forward_backward(pts, K, E, hd, args.size, "numba", present)}
         (a, ga), (b, gb) = call["base"](), call["present"]()  # also compiles both
         print(f"{args.frames} x {args.strands} strands x 32 points at {args.size}x{args.size}, "
               f"{torch.get_num_threads()} threads; "

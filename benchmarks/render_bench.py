@@ -93,12 +93,15 @@ def best_ms(fn, device: str, repeat: int) -> float:
     return best * 1e3
 
 
-def forward_backward(pts, K, E, hd, size: int, backend: str = "auto") -> None:
+def forward_backward(pts, K, E, hd, size: int, backend: str = "auto", render=render_strands):
     """One forward+backward of a scene from :func:`setup` (``pts`` requiring gradients), with the
-    benchmark's loss: silhouette + normalised depth + direction, each summed."""
-    out = render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
+    benchmark's loss: silhouette + normalised depth + direction, each summed. ``render``: the
+    ``render_strands`` to call (render_ab.py passes another commit's). Returns (the render, d loss /
+    d points); ``pts.grad`` is left None."""
+    out = render(pts, K, E, size, size, head_depth=hd, backend=backend)
     (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
-    pts.grad = None
+    grad, pts.grad = pts.grad, None
+    return out, grad
 
 
 def add_scene_args(ap: argparse.ArgumentParser) -> None:

@@ -53,31 +53,22 @@ def _lines_for(compaction, lanes=16):
     """A numba loop calling line16 (``lanes`` 16) or line8 (8: at lane0s[j] on row j) compiled with
     ``compaction`` once per row (built once each)."""
     line = numba_simd.make_line16(compaction, lanes)
-
     if lanes == 16:
-        @numba.njit
-        def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
-                  keep_any, prs, si, e_al, e_la, e_p, lane0s):
-            n = 0
-            for j in range(rows.shape[0]):
-                n += line(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
-                          np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
-                          np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n))
-            return n
-
-        return lines
+        call = numba.njit(lambda *a: line(*a[:-1]))  # line16 has no lane0 argument
+    else:
+        call = numba.njit(lambda *a: line(*a))
 
     @numba.njit
-    def lines8(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
-               keep_any, prs, si, e_al, e_la, e_p, lane0s):
+    def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
+              keep_any, prs, si, e_al, e_la, e_p, lane0s):
         n = 0
         for j in range(rows.shape[0]):
-            n += line(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
+            n += call(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
                       np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
                       np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n), np.uint64(lane0s[j]))
         return n
 
-    return lines8
+    return lines
 
 
 def test_compaction_choice():
