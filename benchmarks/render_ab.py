@@ -6,11 +6,13 @@ extracts the ``vid2haircut`` package of ``--base`` (a commit, with ``git archive
 temporary folder under another package name, imports both, checks that they give the same
 renders and point gradients (byte for byte, or reports that they differ), and times the
 forward+backward of ``render_bench.py``'s scene and loss (silhouette + normalised depth +
-direction) for each in turn: per round, ``--repeat`` calls of each, alternating, best of each.
+direction) for each in turn: per round, ``--repeat`` calls of each, alternating, best of each;
+with ``--kernels`` also each numba kernel of the call (best of the round, as render_kernels.py
+times them), for changes too small to see in the whole call.
 Both sides compile their numba kernels once (the base's into the temporary folder's cache).
 
     .venv/bin/python benchmarks/render_ab.py --base d326216 [--strands 4000] [--size 256] [--frames 1]
-                                             [--threads N] [--rounds 3] [--repeat 15]
+                                             [--threads N] [--rounds 3] [--repeat 15] [--kernels]
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from render_bench import add_scene_args, forward_backward, setup  # noqa: E402  (the benchmark scene, its loss)
+from render_kernels import timed_kernels  # noqa: E402  (the kernels' wrappers)
 
 REPO = Path(__file__).resolve().parents[1]
 BASE_NAME = "v2h_base"
@@ -67,6 +70,7 @@ def main(argv=None) -> int:
     add_scene_args(ap)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=15, help="calls of each per round (the best is printed)")
+    ap.add_argument("--kernels", action="store_true", help="also print each numba kernel's best time per round")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -84,15 +88,26 @@ def main(argv=None) -> int:
               f"{torch.get_num_threads()} threads; "
               f"base {short} against the present code: renders and gradients "
               f"{'identical' if same(a, ga, b, gb) else 'DIFFER'}")
+        package = {"base": BASE_NAME, "present": "vid2haircut"}
         for r in range(args.rounds):
             best = dict.fromkeys(call, float("inf"))
+            kbest: dict[str, dict[str, float]] = {name: {} for name in call}
             for _ in range(args.repeat):
                 for name, fn in call.items():
+                    times: dict[str, float] = {}
+                    undo = timed_kernels(times, package[name]) if args.kernels else []
                     t0 = time.perf_counter()
                     fn()
                     best[name] = min(best[name], time.perf_counter() - t0)
+                    for mod, fname, f in undo:
+                        setattr(mod, fname, f)
+                    for k, t in times.items():
+                        kbest[name][k] = min(kbest[name].get(k, float("inf")), t)
             print(f"round {r + 1}: forward+backward base {best['base'] * 1e3:.1f} ms, "
                   f"present {best['present'] * 1e3:.1f} ms", flush=True)
+            for k in kbest["present"]:
+                print(f"    {k}: base {kbest['base'].get(k, float('nan')) * 1e3:.2f} ms, "
+                      f"present {kbest['present'][k] * 1e3:.2f} ms", flush=True)
     return 0
 
 

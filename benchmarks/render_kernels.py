@@ -32,13 +32,14 @@ KERNELS = {
 }
 
 
-def timed_kernels(times: dict[str, float]) -> list:
-    """Replace the kernels by wrappers adding their wall time to ``times``; returns the undo list."""
+def timed_kernels(times: dict[str, float], package: str = "vid2haircut") -> list:
+    """Replace the kernels of ``package`` (render_ab.py passes another commit's copy) by wrappers
+    adding their wall time to ``times``; returns the undo list."""
     import importlib
 
     undo = []
     for mod_name, names in KERNELS.items():
-        mod = importlib.import_module(f"vid2haircut.render.{mod_name}")
+        mod = importlib.import_module(f"{package}.render.{mod_name}")
         for name in names:
             fn = getattr(mod, name)
 

@@ -34,8 +34,9 @@ import numpy as np
 from numba import njit
 
 from vid2haircut.render.numba_math import lane_cast
-from vid2haircut.render.numba_simd import line8, line16
+from vid2haircut.render.numba_simd import line8, line16, prefetch_row
 from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart, vstart32
+from vid2haircut.render.numba_walk import PREFETCH
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
 BIG = 1e12  # turns a positive depth gap (> 1e-12 m) into a head factor of 1 after clamping
@@ -132,6 +133,12 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     n = off
     for k in range(i0, i1):
         e_range[k, 0] = n
+        if k + PREFETCH < i1:  # the rows of a later instance's Gaussian, fetched while this one is walked
+            gn = sorted_g[k + PREFETCH]
+            prefetch_row(gpar, gn)
+            prefetch_row(wint, gn)
+            prefetch_row(wflt, gn)
+            prefetch_row(zs, gn)
         g = sorted_g[k]
         lay, lo, hi, mvr, qv, lanes0 = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi)
         z, zg = gpar[g, G_Z], zs[g]

@@ -304,3 +304,24 @@ line8 = make_line16(lanes=8)
 """Lanes lane0 .. lane0 + 7 of a line (an argument after ``n``): :func:`line16`'s work halved, for
 the lines of windows whose columns in the tile all lie in one half (about half the lines of the
 benchmark scene; on AVX2 a 16-lane line is two registers of 8)."""
+
+
+@intrinsic
+def prefetch_row(typingctx, ary, i):
+    """Ask the CPU to bring row ``i`` of the C-contiguous array ``ary`` (its first cache line) into
+    the cache (``llvm.prefetch``, read, high locality): a hint with no effect on any value."""
+    if not isinstance(ary, types.Array) or not isinstance(i, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        a = context.make_array(sig.args[0])(context, builder, args[0])
+        stride0 = builder.extract_value(a.strides, 0)
+        idx = context.cast(builder, args[1], sig.args[1], types.int64)
+        i8p = _ir.IntType(8).as_pointer()
+        p = builder.gep(builder.bitcast(a.data, i8p), [builder.mul(idx, stride0)])
+        fn = cgutils.get_or_insert_function(builder.module, _ir.FunctionType(_ir.VoidType(), [i8p, _I32, _I32, _I32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [p, _I32(0), _I32(3), _I32(1)])
+        return context.get_dummy_value()
+
+    return types.void(ary, i), codegen
