@@ -40,7 +40,8 @@ from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, check_points, segment_gaussians
 from vid2haircut.render.kernels import KernelConsts
 from vid2haircut.render.project import check_cameras
-from vid2haircut.render.numba_backend import composite_fused, gaussian_table, project_fused, resolve_backend
+from vid2haircut.render.numba_backend import (channels_fused, composite_fused, gaussian_table, project_fused,
+                                              resolve_backend)
 from vid2haircut.render.raster import composite
 from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
 
@@ -167,7 +168,7 @@ def render_strands(
     else:
         fp = build_footprint(flat[0], flat[1], g.valid.reshape(G), frame, height, width, power_min)
         sums, visible = composite(*flat, fp, B, height, width, consts, head_depth)
-    out = _finish(sums, visible.reshape(B, N, P - 1), g)
+    out = _finish(sums, visible.reshape(B, N, P - 1), g, fused=use_numba)
     if log_t2 is not None:
         return out._replace(silhouette=-torch.expm1(log_t2) + 0.0)
     if silhouette_opacity is not None and silhouette_opacity != opacity:  # a second render
@@ -178,18 +179,21 @@ def render_strands(
     return out
 
 
-def _finish(sums: PixelSums, visibility: Tensor, g) -> StrandRender:
-    """Pixel sums -> image channels."""
+def _finish(sums: PixelSums, visibility: Tensor, g, fused: bool = False) -> StrandRender:
+    """Pixel sums -> image channels (``fused``: by the numba backend's kernels, the same values)."""
     silhouette = sums.weight
-    weight = sums.weight
-    filled = weight > 1e-12
-    safe_w = torch.where(filled, weight, 1.0)  # scalar branches: no filled tensors to allocate
-    depth = torch.where(filled, sums.depth / safe_w, 0.0)
-    norm2 = (sums.dirs * sums.dirs).sum(-1)
-    has_dir = norm2 > 1e-20
-    inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, 1.0)), 0.0)
-    direction = sums.dirs * inv[..., None]  # (0, 0) where there is no direction (StrandRender.angle)
-    mask = (silhouette > 0.5) & filled
+    if fused:
+        depth, direction, mask = channels_fused(sums.weight, sums.depth, sums.dirs)
+    else:
+        weight = sums.weight
+        filled = weight > 1e-12
+        safe_w = torch.where(filled, weight, 1.0)  # scalar branches: no filled tensors to allocate
+        depth = torch.where(filled, sums.depth / safe_w, 0.0)
+        norm2 = (sums.dirs * sums.dirs).sum(-1)
+        has_dir = norm2 > 1e-20
+        inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, 1.0)), 0.0)
+        direction = sums.dirs * inv[..., None]  # (0, 0) where there is no direction (StrandRender.angle)
+        mask = (silhouette > 0.5) & filled
     depth_normalized = normalize_depth(depth, mask)
     return StrandRender(silhouette, direction, depth, depth_normalized, mask, visibility, g)
 

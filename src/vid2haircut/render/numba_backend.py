@@ -230,6 +230,61 @@ class _FusedComposite(torch.autograd.Function):
         return torch.from_numpy(grads).to(ctx.dtype), None, None
 
 
+class _FusedChannels(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, weight, wz, dirs):
+        from vid2haircut.render import numba_channels as nc
+
+        w, z, d = (t.detach().contiguous() for t in (weight, wz, dirs))
+        shape = w.shape
+        wn, zn, dn = w.numpy().reshape(-1), z.numpy().reshape(-1), d.numpy().reshape(-1, 2)
+        dt = wn.dtype
+        depth, direction, mask = np.empty_like(wn), np.empty_like(dn), np.empty(wn.shape, np.bool_)
+        consts = tuple(np.array(v, dt) for v in (1e-12, 1e-20, 0.5))
+        with _LOCK:
+            _numba_threads()
+            nc.channels_forward(wn, zn, dn, *consts, depth, direction, mask)
+        ctx.save_for_backward(w, z, d)
+        ctx.consts = consts[:2]
+        mask_t = torch.from_numpy(mask).reshape(shape)
+        ctx.mark_non_differentiable(mask_t)
+        ctx.set_materialize_grads(False)
+        return torch.from_numpy(depth).reshape(shape), torch.from_numpy(direction).reshape(*shape, 2), mask_t
+
+    @staticmethod
+    def backward(ctx, g_depth, g_dir, _g_mask):
+        from vid2haircut.render import numba_channels as nc
+
+        w, z, d = ctx.saved_tensors
+        wn, zn, dn = w.numpy().reshape(-1), z.numpy().reshape(-1), d.numpy().reshape(-1, 2)
+        with_depth, with_dir = g_depth is not None, g_dir is not None
+        gd = g_depth.detach().to(w.dtype).contiguous().numpy().reshape(-1) if with_depth else np.zeros(0, wn.dtype)
+        gv = g_dir.detach().to(w.dtype).contiguous().numpy().reshape(-1, 2) if with_dir else np.zeros((0, 2), wn.dtype)
+        g_w, g_wz = (np.empty_like(wn), np.empty_like(wn)) if with_depth else (np.zeros(0, wn.dtype),) * 2
+        g_dirs = np.empty_like(dn) if with_dir else np.zeros((0, 2), wn.dtype)
+        with _LOCK:
+            _numba_threads()
+            nc.channels_backward(wn, zn, dn, gd, gv, *ctx.consts, with_depth, with_dir, g_w, g_wz, g_dirs)
+        if not with_depth:
+            return None, None, (torch.from_numpy(g_dirs).reshape(d.shape) if with_dir else None)
+        return (torch.from_numpy(g_w).reshape(w.shape), torch.from_numpy(g_wz).reshape(w.shape),
+                torch.from_numpy(g_dirs).reshape(d.shape) if with_dir else None)
+
+
+def channels_fused(weight: Tensor, wz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    """The image channels of :func:`vid2haircut.render.api.render_strands` from the pixel sums, in one
+    numba pass forward and one backward (:mod:`.numba_channels`), bit for bit torch's.
+
+    Args:
+        weight, wz: [B, H, W] CPU float32 / float64 (1 - transmittance, sum w z); dirs: [B, H, W, 2].
+
+    Returns:
+        (depth [B, H, W], direction [B, H, W, 2], mask [B, H, W] bool), differentiable w.r.t. the
+        three inputs but the mask.
+    """
+    return _FusedChannels.apply(weight, wz, dirs)
+
+
 def composite_fused(
     table: Tensor,  # [G, 8]
     covs: Tensor,  # [G, 3]
