@@ -1,7 +1,7 @@
 """Where the time of one numba-backend render goes: each kernel timed inside ``render_strands``.
 
 Wraps the numba kernels the backend calls (projection, windows, tile binning, compositing,
-visibility and gradient sums), runs forward+backward of the benchmark scene of
+visibility and gradient sums, image channels), runs forward+backward of the benchmark scene of
 ``render_bench.py`` (silhouette + normalised depth + direction) ``--calls`` times and prints, per
 kernel, the best and the median milliseconds, and what is left of the whole call (torch's image
 channels and loss, Python).
@@ -29,6 +29,7 @@ KERNELS = {
     "numba_tiles": ("gaussian_windows", "tile_head_max", "bin_windows", "assign_tiles"),
     "numba_walk": ("tile_bounds",),
     "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
+    "numba_channels": ("channels_forward", "channels_backward"),
 }
 
 
