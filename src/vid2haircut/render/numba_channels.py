@@ -8,7 +8,7 @@ each a pass over [B, H, W] arrays (4.1 ms for one 256 x 256 frame, 9.2 ms for si
 on the project's 2-core CPU). These two kernels do the same per pixel with the same operations in
 the same order (IEEE division and square root: torch's rsqrt is 1 / sqrt correctly rounded, and
 its ``pow(r, 3)`` is r r r), so the channels and the gradients equal torch's bit for bit
-(tests/test_render_backends.py); :class:`vid2haircut.render.numba_backend` wraps them as one
+(tests/test_render_channels.py); :class:`vid2haircut.render.numba_backend` wraps them as one
 autograd function.
 
 Backward, per pixel (autograd's formulas for the torch graph of ``api._finish``, in its order):

@@ -1,0 +1,127 @@
+"""The numba backend's pixel windows and screen-tile binning against slow Python references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from vid2haircut.render.numba_backend import numba_available
+
+
+def _windows_reference(means, covs, valid, height, width, power_min, cols):
+    """Slow float32 reference of the numba window tables (one Gaussian at a time, numpy scalars, the
+    formulas of footprint.gaussian_windows): (hz, u_lo, ncols, need, slope, v0) per Gaussian; u_lo,
+    need, slope and v0 are only meaningful where ncols > 0."""
+    f32 = np.float32
+    c2 = f32(-2.0 * power_min)
+    out = []
+    for (mx, my), (sxx, sxy, syy), ok in zip(means.astype(f32), covs.astype(f32), valid):
+        hz = sxx >= syy
+        mu, mv, suu, svv = (mx, my, sxx, syy) if hz else (my, mx, syy, sxx)
+        size_u, size_v = (f32(width), f32(height)) if hz else (f32(height), f32(width))
+        with np.errstate(all="ignore"):
+            eu, ev = np.sqrt(c2 * suu), np.sqrt(c2 * svv)
+            u_lo = max(np.ceil(mu - eu), f32(0.0))
+            u_hi = min(np.floor(mu + eu), size_u - f32(1.0))
+            slope = sxy / suu
+            det = max(suu * svv - sxy * sxy, f32(1e-12))
+            half = np.sqrt(c2 * det / suu)
+            good = ok and mv + ev >= 0 and mv - ev <= size_v - 1 and all(np.isfinite([mu, eu, ev, half]))
+            ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if good else f32(0.0)
+            nt = int(np.ceil(ncol / f32(cols)))
+            need = int(np.floor(f32(2.0) * half) + f32(1.0)) if nt > 0 else 1
+            out.append((int(hz), int(u_lo) if good else 0, nt * cols, need, slope, mv - slope * mu - half))
+    return out
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+def test_numba_windows_match_a_float32_reference():
+    """numba_tiles.gaussian_windows gives, window for window, the
+    float32 formulas evaluated one Gaussian at a time: random Gaussians on and off a 61 x 47 image,
+    thin and round, some degenerate, NaN, infinite or invalid."""
+    from vid2haircut.render import numba_tiles as nt
+
+    rng = np.random.default_rng(5)
+    G = 3 * 256 + 17
+    means = rng.uniform(-20, 80, (G, 2))
+    a, b = rng.uniform(0.05, 30, G), rng.uniform(0.05, 3, G)
+    ang = rng.uniform(0, np.pi, G)
+    c, s = np.cos(ang), np.sin(ang)
+    covs = np.stack([a * c * c + b * s * s, (a - b) * c * s, a * s * s + b * c * c], 1)
+    covs[::37, 1] = np.sqrt(covs[::37, 0] * covs[::37, 2])  # degenerate (determinant 0)
+    means[::41, 0] = np.nan
+    covs[::43, 2] = np.inf
+    covs[::47, 0] = -1.0
+    valid = rng.random(G) > 0.1
+    height, width, power_min, cols = 47, 61, -4.5, 4
+    wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
+    rows = nt.gaussian_windows(means, covs, valid, height, width, power_min, cols, 8, wint, wflt)
+    ref = _windows_reference(means, covs, valid, height, width, power_min, cols)
+    drawn = 0
+    for g, (hz, u_lo, ncols, need, slope, v0) in enumerate(ref):
+        assert wint[g, nt.W_NCOL] == ncols, g
+        if ncols > 0:
+            drawn += 1
+            assert (wint[g, nt.W_HZ], wint[g, nt.W_ULO]) == (hz, u_lo), g
+            assert wint[g, nt.W_HGT] == (need + rows - 1) // rows * rows, g
+            assert wflt[g, nt.W_SLOPE].tobytes() == slope.tobytes() and wflt[g, nt.W_V0].tobytes() == v0.tobytes(), g
+    assert G // 4 < drawn < G - G // 10  # both kinds are tested
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
+def test_bin_windows_matches_a_python_reference():
+    """numba_tiles.bin_windows (branch-free tile boxes, an unrolled count for boxes of up to 2 x 2
+    tiles) lists the same instances as a plain Python loop over every Gaussian's tiles: windows of
+    every size (1 tile to many), off the image, undrawn or with a NaN line, over two frames, with a
+    head that hides some tiles (and a NaN depth, which nothing hides)."""
+    from vid2haircut.render import numba_tiles as nt
+
+    rng = np.random.default_rng(11)
+    G, H, W, tile, frames = 1500, 70, 90, 16, 2
+    means = rng.uniform(-30, 110, (G, 2))
+    a, b = rng.uniform(0.05, 400, G) ** rng.uniform(0.3, 1.0, G), rng.uniform(0.05, 3, G)
+    ang = rng.uniform(0, np.pi, G)
+    c, s = np.cos(ang), np.sin(ang)
+    covs = np.stack([a * c * c + b * s * s, (a - b) * c * s, a * s * s + b * c * c], 1)
+    valid = rng.random(G) > 0.05
+    wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
+    nt.gaussian_windows(means, covs, valid, H, W, -4.5, 4, 8, wint, wflt)
+    wflt[::97, 1] = np.nan
+    frame = rng.integers(0, frames, G).astype(np.int64)
+    z = rng.uniform(0.4, 0.8, G)
+    z[::89] = np.nan
+    ntx, nty = -(-W // tile), -(-H // tile)
+    hmax = np.where(rng.random(frames * nty * ntx) < 0.3, rng.uniform(0.4, 0.8, frames * nty * ntx), np.inf)
+    gstart, inst_pos, tile_start, sorted_g = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax)
+
+    inst = []  # (tile, g) in Gaussian order
+    for g in range(G):
+        hz, ua, ncol, hgt = (int(v) for v in wint[g])
+        sl, v0 = wflt[g]
+        if ncol <= 0 or not (np.isfinite(sl) and np.isfinite(v0)):
+            continue
+        su, sv = (W, H) if hz else (H, W)
+        ub = min(ua + ncol - 1, su - 1)
+        if ub < ua:
+            continue
+        va, vb = nt.vstart(sl, ua, v0), nt.vstart(sl, ub, v0)
+        vlo, vhi = max(min(va, vb), 0), min(max(va, vb) + hgt - 1, sv - 1)
+        if vhi < vlo:
+            continue
+        (x0, x1), (y0, y1) = ((ua, ub), (vlo, vhi)) if hz else ((vlo, vhi), (ua, ub))
+        for ty in range(y0 // tile, y1 // tile + 1):
+            for tx in range(x0 // tile, x1 // tile + 1):
+                t = (frame[g] * nty + ty) * ntx + tx
+                if not z[g] >= hmax[t]:
+                    inst.append((t, g))
+    counts = np.bincount([g for _, g in inst], minlength=G)
+    assert np.array_equal(gstart, np.concatenate([[0], np.cumsum(counts)]))
+    order = sorted(range(len(inst)), key=lambda i: inst[i][0])  # stable: Gaussian order inside a tile
+    assert np.array_equal(sorted_g, [inst[i][1] for i in order])
+    assert np.array_equal(tile_start, np.concatenate([[0], np.cumsum(np.bincount([t for t, _ in inst],
+                                                                                  minlength=frames * nty * ntx))]))
+    pos = np.empty(len(inst), np.int64)
+    pos[order] = np.arange(len(inst))
+    assert np.array_equal(inst_pos, pos)
+    # boxes beyond 2 x 2 tiles, boxes of up to 2 x 2, and Gaussians with no instance are all there
+    assert (counts > 4).sum() > 50 and ((counts >= 1) & (counts <= 4)).sum() > 200 and (counts == 0).sum() > 200
