@@ -26,6 +26,14 @@ from numba import njit, prange
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _rsqrt(a, b, n2min, one):
+    """(r, h) of direction sums (a, b): h = |(a, b)|^2 > n2min, r = rsqrt(|(a, b)|^2 if h else 1)."""
+    n2 = a * a + b * b
+    h = n2 > n2min
+    return one / np.sqrt(n2 if h else one), h
+
+
 @njit(**_PAR)
 def channels_forward(weight, wz, dirs, wmin, n2min, half, depth, direction, mask):
     """Per pixel of the flattened [M] sums (``dirs`` [M, 2]; one float dtype, with the thresholds
@@ -40,9 +48,7 @@ def channels_forward(weight, wz, dirs, wmin, n2min, half, depth, direction, mask
         q = wz[i] / s
         depth[i] = q if f else zero
         a, b = dirs[i, 0], dirs[i, 1]
-        n2 = a * a + b * b
-        h = n2 > nm
-        r = one / np.sqrt(n2 if h else one)
+        r, h = _rsqrt(a, b, nm, one)
         inv = r if h else zero
         direction[i, 0] = a * inv
         direction[i, 1] = b * inv
@@ -68,9 +74,7 @@ def channels_backward(weight, wz, dirs, g_depth, g_dir, wmin, n2min, with_depth,
             g_w[i] = gs if f else zero
         if with_dir:
             a, b = dirs[i, 0], dirs[i, 1]
-            n2 = a * a + b * b
-            h = n2 > nm
-            r = one / np.sqrt(n2 if h else one)
+            r, h = _rsqrt(a, b, nm, one)
             inv = r if h else zero
             g0, g1 = g_dir[i, 0], g_dir[i, 1]
             gr = g0 * a + g1 * b
