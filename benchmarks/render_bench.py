@@ -10,7 +10,14 @@ the ceiling is a single-core figure.
 
 Usage:
     python benchmarks/render_bench.py [--quick] [--breakdown] [--device cpu|cuda] [--threads N] [--frames B]
-                                      [--backend auto|numba|torch]
+                                      [--backend auto|numba|torch] [--repeat N] [--rounds R]
+
+On a machine whose speed drifts (shared VMs: the same call measured 59 ms, then 100+ ms, within
+minutes), one series of ``--repeat`` runs can fall wholly in a slow moment, and a ratio of a quiet
+renderer series to a slow scatter-add series (or the reverse) means nothing: ``--rounds R`` runs
+the whole set of cases R times, one after the other, and prints for each case the best of every
+column over the rounds (each column's quiet figure, the ratio from those) and the range of the
+rounds' forward+backward and scatter-add bests, which shows how much the machine drifted.
 
 The scene is a synthetic long-hair style on a 0.1 m scalp sphere seen from 0.6 m with a head
 occluder (the sphere's depth), hair filling most of the frame, as in the fitting stages.
@@ -149,6 +156,22 @@ def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int 
                 fwd=t_f / frames, fwd_bwd=t_fb / frames, scatter=scatter / frames)
 
 
+def table_row(n_strands: int, size: int, rounds: list[dict]) -> str:
+    """One Markdown row of the benchmark table from the :func:`bench_case` results of one case in
+    one or more rounds: each column's best over the rounds and the ratio of the two bests; with
+    several rounds, the range of the rounds' forward+backward and scatter-add in brackets."""
+    best = {k: min(r[k] for r in rounds) for k in ("fwd", "fwd_bwd", "scatter")}
+    r0 = rounds[0]
+
+    def spread(key: str) -> str:
+        lo, hi = min(r[key] for r in rounds), max(r[key] for r in rounds)
+        return f" ({lo:.1f}-{hi:.1f})" if len(rounds) > 1 else ""
+
+    return (f"| {n_strands} | {size}x{size} | {r0['segments']} | {r0['T'] / 1e6:.2f} M | {best['fwd']:.1f} | "
+            f"{best['fwd_bwd']:.1f}{spread('fwd_bwd')} | {best['scatter']:.1f}{spread('scatter')} | "
+            f"{best['fwd_bwd'] / best['scatter']:.1f}x |")
+
+
 def breakdown(n_strands: int, size: int, device: str, repeat: int, backend: str = "auto") -> None:
     """Print where the time of one forward+backward goes (ms per stage)."""
     pts, K, E, hd = setup(n_strands, size, 1, device)
@@ -190,6 +213,8 @@ def main(argv=None) -> int:
     ap.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
                     help="compositing kernels (auto: numba on CPU when installed, else torch)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per case (the best is printed)")
+    ap.add_argument("--rounds", type=int, default=1,
+                    help="run every case this many times in turn and print each column's best (drifting machines)")
     ap.add_argument("--breakdown", action="store_true",
                     help="also print the time per stage (4k strands, 256x256; numba: per kernel, render_kernels.py)")
     args = ap.parse_args(argv)
@@ -201,12 +226,21 @@ def main(argv=None) -> int:
     print(f"device: {args.device}; {machine_summary(machine_info(args.device))}; "
           f"backend: {backend}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
           f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
-    print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms | fwd+bwd / scatter |")
-    print("|---|---|---|---|---|---|---|---|")
-    for n, s in cases:
-        r = bench_case(n, s, args.device, repeat, args.frames, backend)
-        print(f"| {n} | {s}x{s} | {r['segments']} | {r['T'] / 1e6:.2f} M | {r['fwd']:.1f} | {r['fwd_bwd']:.1f} | "
-              f"{r['scatter']:.1f} | {r['fwd_bwd'] / r['scatter']:.1f}x |", flush=True)
+    if args.rounds > 1:
+        runs = [[bench_case(n, s, args.device, repeat, args.frames, backend) for n, s in cases]
+                for _ in range(args.rounds)]
+        print(f"best of {args.rounds} rounds of {repeat} runs per column; the rounds' ranges in brackets\n")
+        print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
+              "| fwd+bwd / scatter |")
+        print("|---|---|---|---|---|---|---|---|")
+        for i, (n, s) in enumerate(cases):
+            print(table_row(n, s, [run[i] for run in runs]))
+    else:
+        print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
+              "| fwd+bwd / scatter |")
+        print("|---|---|---|---|---|---|---|---|")
+        for n, s in cases:
+            print(table_row(n, s, [bench_case(n, s, args.device, repeat, args.frames, backend)]), flush=True)
     if args.breakdown:
         breakdown(4000, 256, args.device, repeat, backend)
     return 0

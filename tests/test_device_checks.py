@@ -75,3 +75,14 @@ def test_render_floor_walk_lists_the_renderers_elements(capsys):
     out = capsys.readouterr().out
     assert "| full | walk | none |" in out and out.strip().splitlines()[-1].startswith("| 1 |")
     assert numba_kernels.composite_forward is real
+
+
+def test_render_bench_rounds_take_each_columns_best():
+    """render_bench.py --rounds: each column's best over the rounds, the ratio of those bests, and
+    the rounds' ranges (a slow scatter-add in one round cannot make the ratio look better)."""
+    table_row = load_benchmark("render_bench").table_row
+    quiet = dict(segments=124000, T=7.56e6, fwd=35.0, fwd_bwd=60.0, scatter=6.0)
+    slow = dict(quiet, fwd=50.0, fwd_bwd=62.5, scatter=11.3)
+    row = table_row(4000, 256, [slow, quiet])
+    assert row == "| 4000 | 256x256 | 124000 | 7.56 M | 35.0 | 60.0 (60.0-62.5) | 6.0 (6.0-11.3) | 10.0x |"
+    assert table_row(4000, 256, [slow]) == "| 4000 | 256x256 | 124000 | 7.56 M | 50.0 | 62.5 | 11.3 | 5.5x |"
