@@ -69,15 +69,19 @@ def test_numba_windows_match_a_float32_reference():
 
 
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
-def test_bin_windows_matches_a_python_reference():
+@pytest.mark.parametrize("tile", [16, 12])
+def test_bin_windows_matches_a_python_reference(tile):
     """numba_tiles.bin_windows (branch-free tile boxes, an unrolled count for boxes of up to 2 x 2
-    tiles) lists the same instances as a plain Python loop over every Gaussian's tiles: windows of
-    every size (1 tile to many), off the image, undrawn or with a NaN line, over two frames, with a
-    head that hides some tiles (and a NaN depth, which nothing hides)."""
+    tiles, pixel -> tile by shifts for a power-of-two tile, by division otherwise) lists the same
+    instances as a plain Python loop over every Gaussian's tiles: windows of every size (1 tile to
+    many), off the image, undrawn or with a NaN line, over two
+    frames, with a head that hides some tiles (and a NaN depth, which nothing hides)."""
     from vid2haircut.render import numba_tiles as nt
 
+    assert (nt.tile_shift(16), nt.tile_shift(1), nt.tile_shift(12), nt.tile_shift(0)) == (4, 0, -1, -1)
+    assert all(nt._tile_of(i, 16, 4) == i // 16 and nt._tile_of(i, 12, -1) == i // 12 for i in range(-40, 41))
     rng = np.random.default_rng(11)
-    G, H, W, tile, frames = 1500, 70, 90, 16, 2
+    G, H, W, frames = 1500, 70, 90, 2
     means = rng.uniform(-30, 110, (G, 2))
     a, b = rng.uniform(0.05, 400, G) ** rng.uniform(0.3, 1.0, G), rng.uniform(0.05, 3, G)
     ang = rng.uniform(0, np.pi, G)

@@ -54,9 +54,12 @@ def _pixel_xy(x0, x1, y0, y1):
     tw = x1 - x0 + 1
     npx = tw * (y1 - y0 + 1)
     px, py = np.empty(npx), np.empty(npx)
-    for p in range(npx):
-        px[p] = x0 + p % tw
-        py[p] = y0 + p // tw
+    p = 0
+    for y in range(y0, y1 + 1):  # rows and columns: no division per pixel
+        for x in range(x0, x1 + 1):
+            px[p] = x
+            py[p] = y
+            p += 1
     return px, py
 
 
@@ -165,15 +168,17 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
                         mw = max(mw, w)
                     if mw >= vis_weight:
                         visible[g] = True
-            for p in range(npx):
-                y, x = y0 + p // tw, x0 + p % tw
-                o_l[b, y, x] = acc[0, p]
-                if nbins > 1:
-                    o_z[b, y, x] = acc[1, p]
-                    o_d[b, y, x, 0] = acc[2, p]
-                    o_d[b, y, x, 1] = acc[3, p]
-                if second:
-                    o_2[b, y, x] = acc[4, p]
+            p = 0
+            for y in range(y0, y1 + 1):  # row-major tile pixels: no division per pixel
+                for x in range(x0, x1 + 1):
+                    o_l[b, y, x] = acc[0, p]
+                    if nbins > 1:
+                        o_z[b, y, x] = acc[1, p]
+                        o_d[b, y, x, 0] = acc[2, p]
+                        o_d[b, y, x, 1] = acc[3, p]
+                    if second:
+                        o_2[b, y, x] = acc[4, p]
+                    p += 1
 
 
 @njit(**_PAR)

@@ -74,10 +74,31 @@ def tile_head_max(head, has_head, nframes, width, height, tile):
 
 
 @njit(cache=True, inline="always")
-def _tile_box(g, wint, wflt, width, height, tile):
+def _tile_of(i, tile, shift):
+    """floor(i / tile) for an int64 ``i``: an arithmetic shift when tile = 2^shift (``shift`` >= 0; the
+    same value for negative i too), a division otherwise (``shift`` -1)."""
+    return (i >> shift) if shift >= 0 else i // tile
+
+
+@njit(cache=True)
+def tile_shift(tile):
+    """log2(tile) when ``tile`` is a power of two, else -1 (see :func:`_tile_of`)."""
+    if tile <= 0 or tile & (tile - 1) != 0:
+        return -1
+    s = 0
+    while (1 << s) < tile:
+        s += 1
+    return s
+
+
+@njit(cache=True, inline="always")
+def _tile_box(g, wint, wflt, width, height, tile, shift):
     """Tile range (x0, x1, y0, y1), inclusive, that window g may touch; empty (0, -1, 0, -1) when it
     touches no pixel (not drawn, non-finite line, or off the image). Selects rather than branches:
-    whether a window is horizontal, drawn or on the image is unpredictable from one to the next."""
+    whether a window is horizontal, drawn or on the image is unpredictable from one to the next.
+    Pixel -> tile by shifts when the tile size is a power of two (``shift``, :func:`tile_shift`)
+    instead of four 64-bit divisions: the binning of six 2000-strand frames at 224² 15.0-15.9 ->
+    14.1-14.4 ms single-thread on an AMD Zen 3 (the same instances)."""
     ncol = wint[g, W_NCOL]
     sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
     ok = (ncol > 0) & math.isfinite(sl) & math.isfinite(v0)
@@ -91,7 +112,8 @@ def _tile_box(g, wint, wflt, width, height, tile):
     vlo = max(min(va, vb), 0)
     vhi = min(max(va, vb) + wint[g, W_HGT] - 1, sv - 1)
     ok = ok & (ub >= ua) & (vhi >= vlo)
-    u0, u1, v0_, v1 = ua // tile, ub // tile, vlo // tile, vhi // tile
+    u0, u1 = _tile_of(ua, tile, shift), _tile_of(ub, tile, shift)
+    v0_, v1 = _tile_of(vlo, tile, shift), _tile_of(vhi, tile, shift)
     bx0, bx1, by0, by1 = (u0, u1, v0_, v1) if hz else (v0_, v1, u0, u1)
     return (bx0, bx1, by0, by1) if ok else (0, -1, 0, -1)
 
@@ -119,8 +141,9 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
     box = np.empty((G, 4), np.int64)
     cnt = np.empty(G, np.int64)
     NT = nframes * nty * ntx
+    shift = tile_shift(tile)
     for g in prange(G):
-        bx0, bx1, by0, by1 = _tile_box(g, wint, wflt, width, height, tile)
+        bx0, bx1, by0, by1 = _tile_box(g, wint, wflt, width, height, tile, shift)
         box[g, 0], box[g, 1], box[g, 2], box[g, 3] = bx0, bx1, by0, by1
         zg, row0 = z[g], frame[g] * nty
         if bx1 - bx0 <= 1 and by1 - by0 <= 1:  # at most 2 x 2 tiles (most windows): no loop to mispredict
