@@ -105,8 +105,16 @@ def test_labels_and_errors(tmp_path):
         collect_metrics([bad])
     with pytest.raises(FileNotFoundError, match="missing.json"):
         collect_metrics([tmp_path / "missing.json"], labels=["a/b/c/d"])
+    empty = tmp_path / "empty.json"
+    empty.write_text("{}")
+    with pytest.raises(ValueError, match="empty.json: not a metrics file"):
+        collect_metrics([empty], labels=["a/b/c/d"])
+    text = tmp_path / "text.json"
+    text.write_text('{"chamfer_pts": "0.1"}')
+    with pytest.raises(ValueError, match="text.json: 'chamfer_pts' must be a number"):
+        collect_metrics([text], labels=["a/b/c/d"])
     good = tmp_path / "g.json"
-    good.write_text("{}")
+    good.write_text('{"ground_truth": null}')
     with pytest.raises(ValueError, match="appears twice"):
         collect_metrics([good, good], labels=["a/b/c/d", "a/b/c/d"])
     with pytest.raises(ValueError, match="one label per file"):

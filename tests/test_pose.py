@@ -67,6 +67,14 @@ def test_fit_head_stage_accuracy(synth_root, truth, tmp_path):
     fit2 = run_fit_head(synth_root, SUBJECT, SEQ, tmp_path / "kf" / "keyframes.json", tmp_path / "head2")
     assert (tmp_path / "head" / "head.npz").read_bytes() == (tmp_path / "head2" / "head.npz").read_bytes()
     del fit2
+    # keyframes the sequence does not have: an error naming the keyframes file, before any work
+    bad = tmp_path / "kf_bad.json"
+    d = json.loads((tmp_path / "kf" / "keyframes.json").read_text())
+    d["frames"] = d["frames"] + [999]
+    bad.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=r"kf_bad\.json: keyframes \[999\] are not in the sequence"):
+        run_fit_head(synth_root, SUBJECT, SEQ, bad, tmp_path / "head3")
+    assert not (tmp_path / "head3" / "head.npz").exists()
 
 
 def test_all_frames_with_smoothness(truth):

@@ -166,3 +166,13 @@ def test_error_bad_npz_names_file(dataset: Path) -> None:
     write_npz(root / "tracking" / "head_tracking.npz", frames=np.arange(2), rotation=np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"head_tracking\.npz.*translation"):
         seq.tracking()
+    rot = np.zeros((2, 3))
+    rot[1, 2] = np.nan
+    write_npz(root / "tracking" / "head_tracking.npz", frames=np.arange(2), rotation=rot, translation=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"head_tracking\.npz: 'rotation' has non-finite"):
+        seq.tracking()
+    for scale in ([0.0], [1.0, 1.0, 1.0]):
+        write_npz(root / "tracking" / "head_tracking.npz", frames=np.arange(2), rotation=np.zeros((2, 3)),
+                  translation=np.zeros((2, 3)), scale=np.array(scale))
+        with pytest.raises(ValueError, match=r"head_tracking\.npz: 'scale' must be one positive number"):
+            seq.tracking()

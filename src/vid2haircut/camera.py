@@ -7,6 +7,8 @@ one :class:`Camera` per serial.
 
 from __future__ import annotations
 
+import math
+
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -89,21 +91,42 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
         raise FileNotFoundError(f"{path}: calibration file not found") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object with 'intrinsics', 'world_2_cam', 'width' and "
+                         f"'height', got {type(data).__name__}")
     for key in ("intrinsics", "world_2_cam", "width", "height"):
         if key not in data:
             raise ValueError(f"{path}: missing key '{key}'")
-    K = np.asarray(data["intrinsics"], dtype=np.float64)
-    if K.shape != (3, 3):
-        raise ValueError(f"{path}: 'intrinsics' must be 3x3, got shape {K.shape}")
+    K = _finite_matrix(path, "'intrinsics'", data["intrinsics"], (3, 3))
+    if not isinstance(data["world_2_cam"], dict):
+        raise ValueError(f"{path}: 'world_2_cam' must map camera serials to 4x4 matrices, "
+                         f"got {type(data['world_2_cam']).__name__}")
+    size = []
+    for key in ("width", "height"):
+        v = data[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v) or v <= 0:
+            raise ValueError(f"{path}: '{key}' must be a positive whole number of pixels, got {v!r}")
+        size.append(int(v))
     cams = {}
     for serial, m in data["world_2_cam"].items():
-        m = np.asarray(m, dtype=np.float64)
-        if m.shape != (4, 4):
-            raise ValueError(f"{path}: world_2_cam['{serial}'] must be 4x4, got shape {m.shape}")
-        cams[str(serial)] = Camera(K, m, int(data["width"]), int(data["height"]))
+        m = _finite_matrix(path, f"world_2_cam['{serial}']", m, (4, 4))
+        cams[str(serial)] = Camera(K, m, size[0], size[1])
     if not cams:
         raise ValueError(f"{path}: 'world_2_cam' lists no camera")
     return cams
+
+
+def _finite_matrix(path: Path, name: str, value, shape: tuple[int, int]) -> np.ndarray:
+    """``value`` as a float64 matrix of ``shape`` with finite entries; errors name the file and the entry."""
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{path}: {name} must be a {shape[0]}x{shape[1]} matrix of numbers, got {value!r:.80}") from None
+    if m.shape != shape:
+        raise ValueError(f"{path}: {name} must be {shape[0]}x{shape[1]}, got shape {m.shape}")
+    if not np.isfinite(m).all():
+        raise ValueError(f"{path}: {name} has non-finite entries")
+    return m
 
 
 def save_cameras(path: str | Path, cameras: dict[str, Camera]) -> None:

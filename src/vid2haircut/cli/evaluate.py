@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("evaluate", help="Chamfer / angle / F1 metrics of strands against ground truth",
@@ -12,9 +14,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--gt", required=True, help="ground-truth strands (e.g. ground_truth/strands.npz)")
     p.add_argument("--out", required=True, help="output metrics JSON")
     p.add_argument("--n-points", type=int, default=100, help="points per strand after resampling")
-    p.add_argument("--max-points", type=int, default=0,
+    p.add_argument("--max-points", type=argtypes.nonneg_int, default=0,
                    help="cap on each point set (random subset; 0 = every point, exact)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the subsampling")
+    p.add_argument("--seed", type=argtypes.nonneg_int, default=0, help="seed of the subsampling")
     p.set_defaults(func=run)
 
 

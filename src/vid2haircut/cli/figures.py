@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("figures", help="report figures: turntable, coverage, metrics-table",
@@ -15,9 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--gt", default=None, help="ground-truth strands, drawn as a second row")
     t.add_argument("--head", default=None, help="fitted head.npz or head model name (default: the strands' own)")
     t.add_argument("--size", type=int, default=256, help="side of one view, pixels")
-    t.add_argument("--max-strands", type=int, default=20000, help="thin larger strand sets to this many")
-    t.add_argument("--seed", type=int, default=0, help="seed of the thinning and colour jitter")
-    t.add_argument("--out", required=True, help="output PNG")
+    t.add_argument("--max-strands", type=argtypes.nonneg_int, default=20000, help="thin larger strand sets to this many")
+    t.add_argument("--seed", type=argtypes.nonneg_int, default=0, help="seed of the thinning and colour jitter")
+    t.add_argument("--out", required=True, type=argtypes.image_path, help="output PNG")
     t.set_defaults(func=run_turntable)
 
     c = sub.add_parser("coverage", help="scalp coverage map: keyframes that saw each scalp texel (PNG)")
@@ -26,9 +28,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     c.add_argument("--seq", required=True)
     c.add_argument("--keyframes", required=True, help="keyframes.json")
     c.add_argument("--head", required=True, help="head.npz of the fitted head poses")
-    c.add_argument("--res", type=int, default=64, help="scalp UV resolution of the map")
-    c.add_argument("--device", default="cpu", help="torch device of the head z-buffer")
-    c.add_argument("--out", required=True, help="output PNG")
+    c.add_argument("--res", type=argtypes.bounded_int(1, 4096), default=64, help="scalp UV resolution of the map")
+    c.add_argument("--device", default="cpu", type=argtypes.device, help="torch device of the head z-buffer")
+    c.add_argument("--out", required=True, type=argtypes.image_path, help="output PNG")
     c.set_defaults(func=run_coverage)
 
     m = sub.add_parser("metrics-table", help="metrics.json files of one sequence -> table (.png, .rst or .md)")

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("head", help="head model tools")
@@ -13,7 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     for name, what in (("scale", "overall size"), ("width", "ear-to-ear width"),
                        ("depth", "front-to-back depth"), ("crown", "height of the cranium top")):
         exp.add_argument(f"--{name}", type=float, default=1.0, help=f"{what} factor (default 1)")
-    exp.add_argument("--res", type=int, default=64, help="scalp UV map resolution (default 64)")
+    exp.add_argument("--res", type=argtypes.bounded_int(1, 4096), default=64, help="scalp UV map resolution (default 64)")
     exp.set_defaults(func=run)
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 
 def add_sequence_args(p: argparse.ArgumentParser) -> None:
     """Arguments naming one sequence (shared by the front-stage commands)."""
@@ -30,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--still-frames", type=int, default=3,
                    help="the reference is the frontal frame whose head moved least over this many preceding "
                         "frames (hair lags the head); 0 = simply the most frontal frame")
-    p.add_argument("--frontal-tolerance", type=float, default=3.0,
+    p.add_argument("--frontal-tolerance", type=argtypes.nonneg_float, default=3.0,
                    help="degrees above the most frontal view that still count as frontal for the reference")
     p.set_defaults(func=run)
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 
 def add_fit_args(p: argparse.ArgumentParser) -> None:
     """Arguments shared by the fitting stages: the sequence, its front-stage files, settings."""
@@ -15,8 +17,8 @@ def add_fit_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--targets", "--targets-dir", dest="targets", required=True, help="folder of the targets stage (frame_<t>.npz)")
     p.add_argument("--settings", default=None,
                    help='config overrides: a JSON object or a .json file, e.g. \'{"iterations": 50}\'')
-    p.add_argument("--device", default=None, help="torch device (default: the config's, cpu)")
-    p.add_argument("--seed", type=int, default=None, help="seed (default: the config's, 0)")
+    p.add_argument("--device", default=None, type=argtypes.device, help="torch device (default: the config's, cpu)")
+    p.add_argument("--seed", type=argtypes.nonneg_int, default=None, help="seed (default: the config's, 0)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 from vid2haircut.cli.keyframes import add_sequence_args
 
 
@@ -16,7 +18,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="hair masks: the sequence's hair_masks, the GrabCut fallback, or auto")
     p.add_argument("--depth-source", default="auto", choices=["auto", "maps", "triangulate", "none"],
                    help="depth: the sequence's depth_maps, sparse triangulation, none, or auto")
-    p.add_argument("--device", default=None, help="torch device of the Gabor bank (default cpu)")
+    p.add_argument("--device", default=None, type=argtypes.device, help="torch device of the Gabor bank (default cpu)")
     p.set_defaults(func=run)
 
 

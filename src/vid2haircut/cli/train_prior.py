@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("train_prior", help="train the hair prior (codec + network) on generated hairstyles",
@@ -13,8 +15,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="training preset (vid2haircut.prior.train.SETTINGS): default = photo-like views (the "
                         "bundled prior), tiny = tests, render / render_large = direct renders, standoff = default "
                         "with the standoff term")
-    p.add_argument("--seed", type=int, default=0, help="seed of views, initialisation and batches")
-    p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda")
+    p.add_argument("--seed", type=argtypes.nonneg_int, default=0, help="seed of views, initialisation and batches")
+    p.add_argument("--device", default="cpu", type=argtypes.device, help="torch device, e.g. cpu or cuda")
     p.add_argument("--cache-dir", default=None,
                    help="cache of the generated corpus and rendered views (default: a temporary folder)")
     p.add_argument("--threads", type=int, default=1,

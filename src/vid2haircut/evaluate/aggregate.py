@@ -67,7 +67,8 @@ def label_from_path(path: str | os.PathLike) -> RunLabel:
 def read_metrics(path: str | os.PathLike) -> dict[str, float]:
     """Numeric scalar entries of one metrics JSON object (``null`` -> NaN; strings and lists dropped).
 
-    Raises FileNotFoundError / ValueError naming the file.
+    Raises FileNotFoundError / ValueError naming the file (also when it holds neither ``chamfer_pts``
+    nor ``ground_truth``, or a ``chamfer_pts`` that is not a number or null).
     """
     path = Path(path)
     try:
@@ -78,6 +79,12 @@ def read_metrics(path: str | os.PathLike) -> dict[str, float]:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
     if not isinstance(record, dict):
         raise ValueError(f"{path}: expected a JSON object of metrics, got {type(record).__name__}")
+    if "chamfer_pts" not in record and "ground_truth" not in record:
+        raise ValueError(f"{path}: not a metrics file of `vid2haircut evaluate` (neither 'chamfer_pts' nor "
+                         "'ground_truth')")
+    cp = record.get("chamfer_pts")
+    if isinstance(cp, bool) or not (cp is None or isinstance(cp, (int, float))):
+        raise ValueError(f"{path}: 'chamfer_pts' must be a number (or null), got {cp!r:.40}")
     out: dict[str, float] = {}
     for key, val in record.items():
         if isinstance(val, bool):

@@ -28,6 +28,8 @@ Algorithm (:func:`select_keyframes`):
 
 from __future__ import annotations
 
+import math
+
 import json
 import logging
 from dataclasses import dataclass, field
@@ -84,6 +86,12 @@ class KeyframeSelection:
                 "rejected": {k: [int(t) for t in v] for k, v in self.rejected.items()}}
 
 
+def _is_frame(t) -> bool:
+    """Whether a JSON value is a frame number: a whole number >= 0 (not a bool, not 1.5)."""
+    return (not isinstance(t, bool) and isinstance(t, (int, float)) and math.isfinite(t) and t == int(t)
+            and t >= 0)
+
+
 def load_keyframes(path: str | Path) -> KeyframeSelection:
     """Read ``keyframes.json``; errors name the file."""
     path = Path(path)
@@ -93,12 +101,18 @@ def load_keyframes(path: str | Path) -> KeyframeSelection:
         raise FileNotFoundError(f"{path}: keyframes file not found") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(d, dict):
+        raise ValueError(f"{path}: expected a JSON object with 'frames', 'reference' and 'serial', "
+                         f"got {type(d).__name__}")
     for k in ("frames", "reference", "serial"):
         if k not in d:
             raise ValueError(f"{path}: missing key '{k}'")
+    if not isinstance(d["frames"], list) or not all(_is_frame(t) for t in d["frames"]):
+        raise ValueError(f"{path}: 'frames' must be a list of frame numbers (whole numbers >= 0), "
+                         f"got {d['frames']!r:.80}")
     frames = [int(t) for t in d["frames"]]
-    if not frames or int(d["reference"]) not in frames:
-        raise ValueError(f"{path}: 'reference' {d['reference']} must be one of 'frames' {frames}")
+    if not _is_frame(d["reference"]) or not frames or int(d["reference"]) not in frames:
+        raise ValueError(f"{path}: 'reference' {d['reference']!r} must be one of 'frames' {frames}")
     return KeyframeSelection(frames=frames, reference=int(d["reference"]),
                              scores={int(t): s for t, s in d.get("scores", {}).items()},
                              serial=str(d["serial"]), num_frames=int(d.get("num_frames", 0)),

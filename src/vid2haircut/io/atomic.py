@@ -79,7 +79,10 @@ def write_image(path: str | os.PathLike, image: np.ndarray) -> None:
     elif img.ndim == 3 and img.shape[2] == 4:
         img = img[:, :, [2, 1, 0, 3]]
     path = Path(path)
-    ok, buf = cv2.imencode(path.suffix, np.ascontiguousarray(img))
+    try:
+        ok, buf = cv2.imencode(path.suffix, np.ascontiguousarray(img))
+    except cv2.error:  # no encoder for the suffix
+        ok = False
     if not ok:
         raise OSError(f"{path}: OpenCV could not encode the image as {path.suffix}")
     write_bytes(path, buf.tobytes())

@@ -220,6 +220,10 @@ class Sequence:
         for k in ("rotation", "translation"):
             if out[k].shape != (len(frames), 3):
                 raise ValueError(f"{p}: '{k}' must be ({len(frames)}, 3), got {out[k].shape}")
+            if not np.isfinite(out[k]).all():
+                raise ValueError(f"{p}: '{k}' has non-finite entries")
+        if out["scale"].shape != (1,) or not (np.isfinite(out["scale"]).all() and out["scale"][0] > 0):
+            raise ValueError(f"{p}: 'scale' must be one positive number, got {out['scale'].tolist()}")
         return out
 
     @property

@@ -1,0 +1,127 @@
+"""Bad input files and option values: a clear error naming the file or option, before any work."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from vid2haircut.camera import load_cameras
+from vid2haircut.cli import main
+from vid2haircut.front.keyframes import load_keyframes
+
+EYE4 = np.eye(4).tolist()
+K = [[500.0, 0, 255.5], [0, 500.0, 255.5], [0, 0, 1]]
+
+
+@pytest.mark.parametrize("content, message", [
+    (5, "expected a JSON object"),
+    (None, "expected a JSON object"),
+    ({"intrinsics": K, "world_2_cam": [EYE4], "width": 512, "height": 512}, "'world_2_cam' must map"),
+    ({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": None, "height": 512}, "'width' must be a positive"),
+    ({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": "big", "height": 512}, "'width' must be a positive"),
+    ({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": 512, "height": 0}, "'height' must be a positive"),
+    ({"intrinsics": "abc", "world_2_cam": {"c": EYE4}, "width": 512, "height": 512}, "'intrinsics' must be a 3x3"),
+    ({"intrinsics": [[1, 0, 0], [0, "x", 0], [0, 0, 1]], "world_2_cam": {"c": EYE4}, "width": 8, "height": 8},
+     "'intrinsics' must be a 3x3"),
+    ({"intrinsics": [[float("nan"), 0, 0], [0, 1, 0], [0, 0, 1]], "world_2_cam": {"c": EYE4}, "width": 8,
+      "height": 8}, "'intrinsics' has non-finite"),
+    ({"intrinsics": K, "world_2_cam": {"c": [[1, 2], [3, 4]]}, "width": 8, "height": 8}, r"world_2_cam\['c'\] must be 4x4"),
+])
+def test_calibration_errors_name_the_file(tmp_path, content, message):
+    path = tmp_path / "camera_params.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(ValueError, match=f"camera_params.json: {message}"):
+        load_cameras(path)
+
+
+def test_calibration_accepts_whole_float_sizes(tmp_path):
+    path = tmp_path / "camera_params.json"
+    path.write_text(json.dumps({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": 512.0, "height": 256}))
+    cam = load_cameras(path)["c"]
+    assert (cam.width, cam.height) == (512, 256)
+
+
+@pytest.mark.parametrize("content, message", [
+    (5, "expected a JSON object"),
+    ({"frames": 5, "reference": 5, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    ({"frames": [[1, 2], [3, 4]], "reference": 1, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    ({"frames": ["a"], "reference": 1, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    ({"frames": [1.5, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    ({"frames": [True, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    ({"frames": [1, 2], "reference": "a", "serial": "c"}, "'reference' 'a' must be one of"),
+])
+def test_keyframes_errors_name_the_file(tmp_path, content, message):
+    path = tmp_path / "keyframes.json"
+    path.write_text(json.dumps(content))
+    with pytest.raises(ValueError, match=f"keyframes.json: {message}"):
+        load_keyframes(path)
+
+
+def test_head_fit_file_checks(tmp_path):
+    from vid2haircut.front.headfile import load_head_fit
+    from vid2haircut.io.atomic import write_npz
+
+    def head(**kw):
+        d = dict(head_model=np.array("proxy-v1"), shape=np.ones(3), frames=np.arange(2),
+                 world_from_head=np.repeat(np.eye(4)[None], 2, 0), reprojection_error_px=np.zeros(2))
+        d.update(kw)
+        write_npz(tmp_path / "head.npz", **d)
+
+    head()
+    assert load_head_fit(tmp_path / "head.npz")[0].frames.tolist() == [0, 1]
+    poses = np.repeat(np.eye(4)[None], 2, 0)
+    poses[1, 0, 3] = np.nan
+    for kw, message in [(dict(shape=np.ones(7)), "shape must be 3 positive factors"),
+                        (dict(shape=np.array([1.0, 0.0, 1.0])), "shape must be 3 positive factors"),
+                        (dict(world_from_head=poses), "world_from_head has non-finite"),
+                        (dict(frames=np.arange(0), world_from_head=np.zeros((0, 4, 4)),
+                              reprojection_error_px=np.zeros(0)), "no frames")]:
+        head(**kw)
+        with pytest.raises(ValueError, match=f"head.npz: {message}"):
+            load_head_fit(tmp_path / "head.npz")
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["targets", "--root", "R", "--subject", "S", "--seq", "Q", "--keyframes", "k", "--head", "h", "--out", "o",
+      "--device", "banana"], "not a torch device"),
+    (["keyframes", "--root", "R", "--subject", "S", "--seq", "Q", "--out", "o", "--frontal-tolerance", "-10"],
+     "expected a finite number >= 0"),
+    (["evaluate", "--pred", "p", "--gt", "g", "--out", "o", "--max-points", "-5"], "expected a whole number >= 0"),
+    (["evaluate", "--pred", "p", "--gt", "g", "--out", "o", "--seed", "-1"], "expected a whole number >= 0"),
+    (["figures", "turntable", "--strands", "s", "--out", "x.txt"], "the image format comes from the suffix"),
+    (["figures", "turntable", "--strands", "s", "--out", "x.png", "--max-strands", "-3"], "whole number >= 0"),
+    (["head", "export", "d", "--res", "100000"], "in [1, 4096]"),
+    (["export", "--strands", "s", "--out-dir", "o", "--stem", "../escape"], "without a folder part"),
+])
+def test_bad_option_values_are_refused_before_any_work(argv, message, capsys):
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and argv[-2] in err  # argparse names the option
+
+
+def test_cuda_device_needs_cuda():
+    import argparse
+
+    import torch
+
+    from vid2haircut.cli import argtypes
+
+    assert argtypes.device("cpu") == "cpu"
+    if not torch.cuda.is_available():
+        with pytest.raises(argparse.ArgumentTypeError, match="CUDA is not available"):
+            argtypes.device("cuda:7")
+    else:
+        with pytest.raises(argparse.ArgumentTypeError, match="CUDA device"):
+            argtypes.device(f"cuda:{torch.cuda.device_count()}")
+
+
+def test_image_writer_names_the_file_for_an_unknown_format(tmp_path):
+    from vid2haircut.io.atomic import write_image
+
+    with pytest.raises(OSError, match="x.txt: OpenCV could not encode"):
+        write_image(tmp_path / "x.txt", np.zeros((4, 4, 3), np.uint8))
+    assert not list(tmp_path.iterdir())
