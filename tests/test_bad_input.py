@@ -125,3 +125,44 @@ def test_image_writer_names_the_file_for_an_unknown_format(tmp_path):
     with pytest.raises(OSError, match="x.txt: OpenCV could not encode"):
         write_image(tmp_path / "x.txt", np.zeros((4, 4, 3), np.uint8))
     assert not list(tmp_path.iterdir())
+
+
+def test_a_folder_in_place_of_an_output_is_refused_before_writing(tmp_path):
+    """export writes five files: a folder where the fourth should go is found before the first is
+    replaced; an atomic write onto a folder names the output, not its temporary file."""
+    from vid2haircut.export.export import export_hairstyle
+    from vid2haircut.io.atomic import write_text
+    from vid2haircut.strands import StrandSet
+
+    rng = np.random.default_rng(0)
+    strands = StrandSet(points=rng.normal(size=(3, 5, 3)).astype(np.float32))
+    out = tmp_path / "out"
+    (out / "hair.ply").mkdir(parents=True)
+    (out / "hair.data").write_bytes(b"old")
+    with pytest.raises(IsADirectoryError, match=r"hair\.ply: is a folder"):
+        export_hairstyle(strands, out)
+    assert (out / "hair.data").read_bytes() == b"old" and not (out / "hair.usda").exists()
+    (tmp_path / "f.json").mkdir()
+    with pytest.raises(IsADirectoryError, match=r"f\.json: is a folder"):
+        write_text(tmp_path / "f.json", "{}")
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
+
+
+def test_landmark_embedding_junk_names_the_file(tmp_path):
+    from vid2haircut.head.flame_head import load_landmark_embedding
+
+    bad = tmp_path / "emb.npz"
+    bad.write_bytes(b"not a zip file at all")
+    with pytest.raises(ValueError, match=r"emb\.npz: not a readable \.npz landmark embedding"):
+        load_landmark_embedding(bad)
+
+
+def test_targets_are_not_left_mixed_by_a_folder_in_place_of_an_output(tmp_path):
+    from vid2haircut.front.targets.build import FrameTargets, write_targets
+
+    z = np.zeros((8, 8), np.float32)
+    targets = [FrameTargets(t, np.zeros((8, 8, 3), np.uint8), z, z, z, z, z > 0, "file") for t in (3, 7)]
+    (tmp_path / "orientation_00007.png").mkdir()
+    with pytest.raises(IsADirectoryError, match=r"orientation_00007\.png: is a folder"):
+        write_targets(tmp_path, targets, {})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["orientation_00007.png"]

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from vid2haircut.export.usd import write_usd_curves
-from vid2haircut.io.atomic import write_text
+from vid2haircut.io.atomic import check_outputs, write_text
 from vid2haircut.io.strand_formats import load_strands, save_strands
 from vid2haircut.strands import StrandSet
 
@@ -62,6 +62,8 @@ def export_hairstyle(strands: StrandSet, out_dir: str | os.PathLike, head_vertic
     if strands.n_strands == 0:
         raise ValueError("export_hairstyle: the strand set is empty")
     out = Path(out_dir)
+    check_outputs([out / f"{stem}.{fmt}" for fmt in (usd_format, "hair", "data", "ply", "npz")]
+                  + ([out / "head.obj"] if head_vertices is not None else []))
     out.mkdir(parents=True, exist_ok=True)
     written = {"usd": write_usd_curves(out / f"{stem}.{usd_format}", strands, head_vertices, head_faces)}
     for fmt in ("hair", "data", "ply", "npz"):

@@ -23,8 +23,11 @@ def load_landmark_embedding(src) -> tuple[np.ndarray, np.ndarray]:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such landmark embedding file")
         if path.suffix == ".npz":
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
+            try:
+                with np.load(path, allow_pickle=False) as z:
+                    data = {k: z[k] for k in z.files}
+            except (OSError, ValueError, EOFError) as e:
+                raise ValueError(f"{path}: not a readable .npz landmark embedding ({e})") from None
         else:
             data = safe_load_pickle(path)
         if not isinstance(data, dict) or "lmk_face_idx" not in data or "lmk_b_coords" not in data:

@@ -25,6 +25,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     the target is left untouched.
     """
     path = Path(path)
+    if path.is_dir():  # checked before any work: os.replace would fail only after it, naming the temporary file
+        raise IsADirectoryError(f"{path}: is a folder, cannot write the output file there")
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
                                dir=path.parent)
@@ -38,6 +40,14 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def check_outputs(paths) -> None:
+    """Raise before a stage writes several files when one of the output ``paths`` is an existing
+    folder (a late failure would leave the earlier files replaced and the later ones old)."""
+    for path in paths:
+        if Path(path).is_dir():
+            raise IsADirectoryError(f"{path}: is a folder, cannot write the output file there")
 
 
 def _umask() -> int:

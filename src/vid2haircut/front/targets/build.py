@@ -112,9 +112,11 @@ def compute_targets(seq, fit: HeadFit, mask_source: str = "auto", depth_cfg: Dep
 def write_targets(out_dir: str | Path, targets: list[FrameTargets], summary: dict) -> None:
     """Write ``frame_<t>.npz``, ``orientation_<t>.png`` and ``targets.json`` atomically."""
     from vid2haircut.front.figures import orientation_panel
-    from vid2haircut.io.atomic import write_image, write_json, write_npz
+    from vid2haircut.io.atomic import check_outputs, write_image, write_json, write_npz
 
     out = Path(out_dir)
+    check_outputs([out / "targets.json"] + [out / f"{kind}_{ft.frame:05d}.{ext}" for ft in targets
+                                            for kind, ext in (("frame", "npz"), ("orientation", "png"))])
     for ft in targets:
         write_npz(out / f"frame_{ft.frame:05d}.npz", mask=ft.mask.astype(np.float32),
                   angle=ft.angle.astype(np.float32), confidence=ft.confidence.astype(np.float32),
