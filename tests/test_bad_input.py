@@ -166,3 +166,18 @@ def test_targets_are_not_left_mixed_by_a_folder_in_place_of_an_output(tmp_path):
     with pytest.raises(IsADirectoryError, match=r"orientation_00007\.png: is a folder"):
         write_targets(tmp_path, targets, {})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["orientation_00007.png"]
+
+
+def test_an_empty_strand_file_is_named(tmp_path):
+    from vid2haircut.evaluate.metrics import evaluate_files
+    from vid2haircut.export.export import export_files
+    from vid2haircut.io.strand_formats import save_strands
+    from vid2haircut.strands import StrandSet
+
+    empty = save_strands(tmp_path / "empty.npz", StrandSet(points=np.zeros((0, 4, 3), np.float32)))
+    full = save_strands(tmp_path / "full.npz", StrandSet(points=np.ones((2, 4, 3), np.float32)))
+    with pytest.raises(ValueError, match=r"empty\.npz: the strand file holds no strands"):
+        evaluate_files(empty, full, tmp_path / "m.json")
+    with pytest.raises(ValueError, match=r"empty\.npz: the strand file holds no strands"):
+        export_files(empty, tmp_path / "out")
+    assert not (tmp_path / "m.json").exists() and not (tmp_path / "out").exists()

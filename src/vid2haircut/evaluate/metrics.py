@@ -221,6 +221,9 @@ def evaluate_files(pred_path: str | os.PathLike, gt_path: str | os.PathLike, out
     """
     pred = load_strands(pred_path)
     gt = load_strands(gt_path)
+    for path, s in ((pred_path, pred), (gt_path, gt)):
+        if s.n_strands == 0:
+            raise ValueError(f"{path}: the strand file holds no strands")
     record = evaluate_strands(pred, gt, n_points=n_points, max_points=max_points, seed=seed)
     record.update(points_per_strand=int(n_points), max_points=int(max_points or 0), seed=int(seed),
                   pred_file=Path(pred_path).name, gt_file=Path(gt_path).name)

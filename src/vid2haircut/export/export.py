@@ -82,6 +82,8 @@ def export_files(strands_path: str | os.PathLike, out_dir: str | os.PathLike, he
         head: optional head model name for :func:`vid2haircut.head.get_head` (e.g. ``"proxy-v1"``).
     """
     strands = load_strands(strands_path)
+    if strands.n_strands == 0:
+        raise ValueError(f"{strands_path}: the strand file holds no strands")
     verts = faces = None
     if head:
         from vid2haircut.head import get_head
