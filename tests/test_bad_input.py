@@ -181,3 +181,20 @@ def test_an_empty_strand_file_is_named(tmp_path):
     with pytest.raises(ValueError, match=r"empty\.npz: the strand file holds no strands"):
         export_files(empty, tmp_path / "out")
     assert not (tmp_path / "m.json").exists() and not (tmp_path / "out").exists()
+
+
+def test_landmark_embedding_with_the_built_in_head_is_refused():
+    from vid2haircut.front.headfile import base_landmarks
+
+    assert base_landmarks("proxy-v1").shape == (68, 3)
+    with pytest.raises(ValueError, match=r"emb\.npz: a landmark embedding is for a FLAME model"):
+        base_landmarks("proxy-v1", "emb.npz")
+
+
+def test_an_output_under_a_file_names_it(tmp_path):
+    from vid2haircut.io.atomic import write_json
+
+    (tmp_path / "out").write_text("a file")
+    with pytest.raises(NotADirectoryError, match=r"out: is a file, cannot hold the output .*out/sub/x\.json"):
+        write_json(tmp_path / "out" / "sub" / "x.json", {})
+    assert (tmp_path / "out").read_text() == "a file"

@@ -39,6 +39,9 @@ def resolve_head(spec: str, shape: np.ndarray | None = None, landmark_embedding:
     from vid2haircut.head import HEAD_NAMES, get_head
 
     if spec in HEAD_NAMES:
+        if landmark_embedding:
+            raise ValueError(f"{landmark_embedding}: a landmark embedding is for a FLAME model; the built-in head "
+                             f"{spec!r} has its own landmarks (leave --landmark-embedding out, or give the FLAME .pkl)")
         if shape is None:
             return get_head(spec)
         s, w, d = (float(v) for v in shape)

@@ -27,6 +27,11 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     path = Path(path)
     if path.is_dir():  # checked before any work: os.replace would fail only after it, naming the temporary file
         raise IsADirectoryError(f"{path}: is a folder, cannot write the output file there")
+    for folder in (path.parent, *path.parent.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise NotADirectoryError(f"{folder}: is a file, cannot hold the output {path}")
+            break
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
                                dir=path.parent)
