@@ -198,3 +198,14 @@ def test_an_output_under_a_file_names_it(tmp_path):
     with pytest.raises(NotADirectoryError, match=r"out: is a file, cannot hold the output .*out/sub/x\.json"):
         write_json(tmp_path / "out" / "sub" / "x.json", {})
     assert (tmp_path / "out").read_text() == "a file"
+
+
+def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, capsys):
+    (tmp_path / "out").write_text("a file")
+    for argv in (["keyframes", "--root", "R", "--subject", "S", "--seq", "Q", "--out", str(tmp_path / "out")],
+                 ["head", "export", str(tmp_path / "out" / "head")]):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 2
+        assert f"{tmp_path / 'out'}: is a file, cannot hold the output folder" in capsys.readouterr().err
+    assert (tmp_path / "out").read_text() == "a file"

@@ -76,3 +76,14 @@ def file_stem(text: str) -> str:
     if not text or Path(text).name != text or text in (".", ".."):
         raise argparse.ArgumentTypeError(f"{text!r}: expected a file name stem without a folder part")
     return text
+
+
+def out_folder(text: str) -> str:
+    """An output folder: absent (it is created) or an existing folder, not a file."""
+    path = Path(text)
+    for folder in (path, *path.parents):
+        if folder.exists():
+            if not folder.is_dir():
+                raise argparse.ArgumentTypeError(f"{folder}: is a file, cannot hold the output folder {text}")
+            break
+    return text

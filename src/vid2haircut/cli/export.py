@@ -11,7 +11,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("export", help="export strands to USD / .hair / .data / PLY / .npz",
                               description=__doc__)
     p.add_argument("--strands", required=True, help="input strand file (.npz, .data, .hair, .ply)")
-    p.add_argument("--out-dir", required=True, help="output folder")
+    p.add_argument("--out-dir", required=True, type=argtypes.out_folder, help="output folder")
     p.add_argument("--head", default=None, help="head model to export alongside (e.g. proxy-v1)")
     p.add_argument("--stem", default="hair", type=argtypes.file_stem, help="file name stem of the strand files")
     p.add_argument("--usd-format", choices=("usda", "usdc"), default="usda", help="USD encoding")

@@ -11,7 +11,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("head", help="head model tools")
     sub = parser.add_subparsers(dest="head_command", required=True, metavar="<action>")
     exp = sub.add_parser("export", help="write head.obj, landmarks.json and scalp_uv.npz of the proxy head")
-    exp.add_argument("out_dir", metavar="DIR", help="output folder")
+    exp.add_argument("out_dir", metavar="DIR", type=argtypes.out_folder, help="output folder")
     for name, what in (("scale", "overall size"), ("width", "ear-to-ear width"),
                        ("depth", "front-to-back depth"), ("crown", "height of the cranium top")):
         exp.add_argument(f"--{name}", type=float, default=1.0, help=f"{what} factor (default 1)")

@@ -13,7 +13,7 @@ def add_sequence_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--subject", required=True, help="subject folder name")
     p.add_argument("--seq", "--sequence", dest="sequence", required=True, help="sequence name")
     p.add_argument("--serial", default=None, help="camera serial (default: first sorted / as recorded)")
-    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("--out", required=True, type=argtypes.out_folder, help="output folder")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

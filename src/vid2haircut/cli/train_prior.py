@@ -10,7 +10,7 @@ from vid2haircut.cli import argtypes
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("train_prior", help="train the hair prior (codec + network) on generated hairstyles",
                               description=__doc__)
-    p.add_argument("--out-dir", required=True, help="artifact folder (codec.npz, prior.pt, prior.json)")
+    p.add_argument("--out-dir", required=True, type=argtypes.out_folder, help="artifact folder (codec.npz, prior.pt, prior.json)")
     p.add_argument("--setting", default="default", choices=["default", "tiny", "render", "render_large", "standoff"],
                    help="training preset (vid2haircut.prior.train.SETTINGS): default = photo-like views (the "
                         "bundled prior), tiny = tests, render / render_large = direct renders, standoff = default "
