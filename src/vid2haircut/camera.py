@@ -7,9 +7,8 @@ one :class:`Camera` per serial.
 
 from __future__ import annotations
 
-import math
-
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -105,8 +105,9 @@ def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
         raise ValueError(f"{path}: world_from_head must be ({m}, 4, 4), got {d['world_from_head'].shape}")
     if not np.isfinite(d["world_from_head"]).all():
         raise ValueError(f"{path}: world_from_head has non-finite entries")
-    if d["shape"].shape != (3,) or d["shape"].dtype.kind not in "fiu" or not (np.isfinite(d["shape"]).all() and (d["shape"] > 0).all()):
-        raise ValueError(f"{path}: shape must be 3 positive factors {SHAPE_NAMES}, got {d['shape'].tolist()}")
+    shape = d["shape"]
+    if shape.shape != (3,) or shape.dtype.kind not in "fiu" or not (np.isfinite(shape).all() and (shape > 0).all()):
+        raise ValueError(f"{path}: shape must be 3 positive factors {SHAPE_NAMES}, got {shape.tolist()}")
     fit = HeadFit(head_model=str(d["head_model"]), shape=d["shape"].astype(np.float64),
                   frames=d["frames"].astype(np.int64), world_from_head=d["world_from_head"].astype(np.float64),
                   reprojection_error_px=d["reprojection_error_px"].astype(np.float64),

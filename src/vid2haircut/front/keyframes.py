@@ -28,9 +28,8 @@ Algorithm (:func:`select_keyframes`):
 
 from __future__ import annotations
 
-import math
-
 import json
+import math
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
