@@ -226,19 +226,17 @@ def main(argv=None) -> int:
     print(f"device: {args.device}; {machine_summary(machine_info(args.device))}; "
           f"backend: {backend}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
           f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
+    header = ("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
+              "| fwd+bwd / scatter |\n|---|---|---|---|---|---|---|---|")
     if args.rounds > 1:
         runs = [[bench_case(n, s, args.device, repeat, args.frames, backend) for n, s in cases]
                 for _ in range(args.rounds)]
         print(f"best of {args.rounds} rounds of {repeat} runs per column; the rounds' ranges in brackets\n")
-        print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
-              "| fwd+bwd / scatter |")
-        print("|---|---|---|---|---|---|---|---|")
+        print(header)
         for i, (n, s) in enumerate(cases):
             print(table_row(n, s, [run[i] for run in runs]))
-    else:
-        print("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
-              "| fwd+bwd / scatter |")
-        print("|---|---|---|---|---|---|---|---|")
+    else:  # each row as soon as its case is done
+        print(header)
         for n, s in cases:
             print(table_row(n, s, [bench_case(n, s, args.device, repeat, args.frames, backend)]), flush=True)
     if args.breakdown:

@@ -15,48 +15,47 @@ EYE4 = np.eye(4).tolist()
 K = [[500.0, 0, 255.5], [0, 500.0, 255.5], [0, 0, 1]]
 
 
-@pytest.mark.parametrize("content, message", [
-    (5, "expected a JSON object"),
-    (None, "expected a JSON object"),
-    ({"intrinsics": K, "world_2_cam": [EYE4], "width": 512, "height": 512}, "'world_2_cam' must map"),
-    ({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": None, "height": 512}, "'width' must be a positive"),
-    ({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": "big", "height": 512}, "'width' must be a positive"),
-    ({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": 512, "height": 0}, "'height' must be a positive"),
-    ({"intrinsics": "abc", "world_2_cam": {"c": EYE4}, "width": 512, "height": 512}, "'intrinsics' must be a 3x3"),
-    ({"intrinsics": [[1, 0, 0], [0, "x", 0], [0, 0, 1]], "world_2_cam": {"c": EYE4}, "width": 8, "height": 8},
-     "'intrinsics' must be a 3x3"),
-    ({"intrinsics": [[float("nan"), 0, 0], [0, 1, 0], [0, 0, 1]], "world_2_cam": {"c": EYE4}, "width": 8,
-      "height": 8}, "'intrinsics' has non-finite"),
-    ({"intrinsics": K, "world_2_cam": {"c": [[1, 2], [3, 4]]}, "width": 8, "height": 8}, r"world_2_cam\['c'\] must be 4x4"),
+CAM, KF = "camera_params.json", "keyframes.json"
+LOADERS = {CAM: load_cameras, KF: load_keyframes}
+
+
+def cal(**kw) -> dict:
+    """A valid calibration with the entries of ``kw`` replaced."""
+    return {"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": 512, "height": 512, **kw}
+
+
+@pytest.mark.parametrize("name, content, message", [
+    (CAM, 5, "expected a JSON object"),
+    (CAM, None, "expected a JSON object"),
+    (CAM, cal(world_2_cam=[EYE4]), "'world_2_cam' must map"),
+    (CAM, cal(width=None), "'width' must be a positive"),
+    (CAM, cal(width="big"), "'width' must be a positive"),
+    (CAM, cal(height=0), "'height' must be a positive"),
+    (CAM, cal(intrinsics="abc"), "'intrinsics' must be a 3x3"),
+    (CAM, cal(intrinsics=[[1, 0, 0], [0, "x", 0], [0, 0, 1]]), "'intrinsics' must be a 3x3"),
+    (CAM, cal(intrinsics=[[float("nan"), 0, 0], [0, 1, 0], [0, 0, 1]]), "'intrinsics' has non-finite"),
+    (CAM, cal(world_2_cam={"c": [[1, 2], [3, 4]]}), r"world_2_cam\['c'\] must be 4x4"),
+    (KF, 5, "expected a JSON object"),
+    (KF, {"frames": 5, "reference": 5, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    (KF, {"frames": [[1, 2], [3, 4]], "reference": 1, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    (KF, {"frames": ["a"], "reference": 1, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    (KF, {"frames": [1.5, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    (KF, {"frames": [True, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
+    (KF, {"frames": [1, 2], "reference": "a", "serial": "c"}, "'reference' 'a' must be one of"),
 ])
-def test_calibration_errors_name_the_file(tmp_path, content, message):
-    path = tmp_path / "camera_params.json"
+def test_json_input_errors_name_the_file(tmp_path, name, content, message):
+    """Calibration and keyframe files of the wrong types, shapes or values: a ValueError naming the file."""
+    path = tmp_path / name
     path.write_text(json.dumps(content))
-    with pytest.raises(ValueError, match=f"camera_params.json: {message}"):
-        load_cameras(path)
+    with pytest.raises(ValueError, match=f"{name}: {message}"):
+        LOADERS[name](path)
 
 
 def test_calibration_accepts_whole_float_sizes(tmp_path):
-    path = tmp_path / "camera_params.json"
-    path.write_text(json.dumps({"intrinsics": K, "world_2_cam": {"c": EYE4}, "width": 512.0, "height": 256}))
+    path = tmp_path / CAM
+    path.write_text(json.dumps(cal(width=512.0, height=256)))
     cam = load_cameras(path)["c"]
     assert (cam.width, cam.height) == (512, 256)
-
-
-@pytest.mark.parametrize("content, message", [
-    (5, "expected a JSON object"),
-    ({"frames": 5, "reference": 5, "serial": "c"}, "'frames' must be a list of frame numbers"),
-    ({"frames": [[1, 2], [3, 4]], "reference": 1, "serial": "c"}, "'frames' must be a list of frame numbers"),
-    ({"frames": ["a"], "reference": 1, "serial": "c"}, "'frames' must be a list of frame numbers"),
-    ({"frames": [1.5, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
-    ({"frames": [True, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
-    ({"frames": [1, 2], "reference": "a", "serial": "c"}, "'reference' 'a' must be one of"),
-])
-def test_keyframes_errors_name_the_file(tmp_path, content, message):
-    path = tmp_path / "keyframes.json"
-    path.write_text(json.dumps(content))
-    with pytest.raises(ValueError, match=f"keyframes.json: {message}"):
-        load_keyframes(path)
 
 
 def test_head_fit_file_checks(tmp_path):

@@ -9,17 +9,6 @@ from pathlib import Path
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def nonneg_int(text: str) -> int:
-    """An integer >= 0."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {v}")
-    return v
-
-
 def nonneg_float(text: str) -> float:
     """A finite number >= 0."""
     try:
@@ -58,17 +47,23 @@ def image_path(text: str) -> str:
     return text
 
 
-def bounded_int(lo: int, hi: int):
-    """An integer in [lo, hi]."""
+def bounded_int(lo: int, hi: int | None = None):
+    """An integer in [lo, hi] (``hi`` None: no upper bound)."""
+    want = f"a whole number >= {lo}" if hi is None else f"a whole number in [{lo}, {hi}]"
+
     def check(text: str) -> int:
         try:
             v = int(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-        if not lo <= v <= hi:
-            raise argparse.ArgumentTypeError(f"expected a whole number in [{lo}, {hi}], got {v}")
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
+        if v < lo or (hi is not None and v > hi):
+            raise argparse.ArgumentTypeError(f"expected {want}, got {v}")
         return v
     return check
+
+
+nonneg_int = bounded_int(0)
+"""An integer >= 0."""
 
 
 def file_stem(text: str) -> str:
@@ -80,10 +75,9 @@ def file_stem(text: str) -> str:
 
 def out_folder(text: str) -> str:
     """An output folder: absent (it is created) or an existing folder, not a file."""
-    path = Path(text)
-    for folder in (path, *path.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise argparse.ArgumentTypeError(f"{folder}: is a file, cannot hold the output folder {text}")
-            break
+    from vid2haircut.io.atomic import blocking_file
+
+    f = blocking_file(text)
+    if f is not None:
+        raise argparse.ArgumentTypeError(f"{f}: is a file, cannot hold the output folder {text}")
     return text

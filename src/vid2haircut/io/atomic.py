@@ -25,13 +25,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     the target is left untouched.
     """
     path = Path(path)
-    if path.is_dir():  # checked before any work: os.replace would fail only after it, naming the temporary file
-        raise IsADirectoryError(f"{path}: is a folder, cannot write the output file there")
-    for folder in (path.parent, *path.parent.parents):
-        if folder.exists():
-            if not folder.is_dir():
-                raise NotADirectoryError(f"{folder}: is a file, cannot hold the output {path}")
-            break
+    check_outputs([path])  # before any work: os.replace would fail only after it, naming the temporary file
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
                                dir=path.parent)
@@ -47,12 +41,25 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         raise
 
 
+def blocking_file(folder: str | os.PathLike) -> Path | None:
+    """The file that keeps ``folder`` from being a folder (``folder`` itself or its nearest existing
+    parent, when that is not a folder), or None."""
+    for f in (Path(folder), *Path(folder).parents):
+        if f.exists():
+            return None if f.is_dir() else f
+    return None
+
+
 def check_outputs(paths) -> None:
-    """Raise before a stage writes several files when one of the output ``paths`` is an existing
-    folder (a late failure would leave the earlier files replaced and the later ones old)."""
-    for path in paths:
-        if Path(path).is_dir():
+    """Raise, naming it, when an output file of ``paths`` cannot be written: an existing folder in its
+    place, or a file where one of its folders should be. Stages that write several files call it
+    first (a late failure would leave the earlier files replaced and the later ones old)."""
+    for path in map(Path, paths):
+        if path.is_dir():
             raise IsADirectoryError(f"{path}: is a folder, cannot write the output file there")
+        f = blocking_file(path.parent)
+        if f is not None:
+            raise NotADirectoryError(f"{f}: is a file, cannot hold the output {path}")
 
 
 def _umask() -> int:
