@@ -74,9 +74,18 @@ def test_head_fit_file_checks(tmp_path):
     poses[1, 0, 3] = np.nan
     for kw, message in [(dict(shape=np.ones(7)), "shape must be 3 positive factors"),
                         (dict(shape=np.array([1.0, 0.0, 1.0])), "shape must be 3 positive factors"),
-                        (dict(world_from_head=poses), "world_from_head has non-finite"),
+                        (dict(world_from_head=poses), "'world_from_head' has non-finite"),
+                        (dict(world_from_head=np.zeros((2, 4, 4))), r"world_from_head of frames \[0, 1\] is not a rigid"),
+                        (dict(world_from_head=np.repeat(2 * np.eye(4)[None], 2, 0)), "world_from_head of frames .* is not a rigid"),
                         (dict(frames=np.arange(0), world_from_head=np.zeros((0, 4, 4)),
-                              reprojection_error_px=np.zeros(0)), "no frames")]:
+                              reprojection_error_px=np.zeros(0)), "no frames"),
+                        (dict(frames=np.array([0.0, 1.5])), r"'frames' must hold whole frame numbers, got \[1.5\]"),
+                        (dict(frames=np.array(3)), "'frames' must be a 1-D array"),
+                        (dict(frames=np.array([4, 4])), r"'frames' lists frames \[4\] more than once"),
+                        (dict(head_model=np.array("bogus")), "unknown head model 'bogus'"),
+                        (dict(reprojection_error_px=np.zeros(3)), r"'reprojection_error_px' must have shape \(2,\)"),
+                        (dict(inliers=np.ones((2, 5), bool)), r"'inliers' must have shape \(2, 68\)"),
+                        (dict(landmarks_2d=np.zeros((2, 68))), r"'landmarks_2d' must have shape \(2, 68, 2\)")]:
         head(**kw)
         with pytest.raises(ValueError, match=f"head.npz: {message}"):
             load_head_fit(tmp_path / "head.npz")

@@ -77,6 +77,38 @@ def test_fit_head_stage_accuracy(synth_root, truth, tmp_path):
     assert not (tmp_path / "head3" / "head.npz").exists()
 
 
+def test_frames_numbered_from_100(synth_root, tmp_path):
+    """A sequence whose frame files start at frame_00100 (a cut from a longer video): keyframes,
+    head fit and targets work on its own frame numbers."""
+    import shutil
+
+    from vid2haircut.front.keyframes import KeyframeConfig
+    from vid2haircut.front.stages import run_fit_head, run_keyframes, run_targets
+    from vid2haircut.io.atomic import write_npz
+
+    src = synth_root / SUBJECT
+    dst = tmp_path / SUBJECT
+    shutil.copytree(src / "calibration", dst / "calibration")
+    for kind in ("images", "alpha_maps", "hair_masks", "depth_maps"):
+        for f in sorted((src / "sequences" / SEQ / kind).glob("cam_*/frame_*.*")):
+            t = int(f.stem.split("_")[1])
+            out = dst / "sequences" / SEQ / kind / f.parent.name / f"frame_{t + 100:05d}{f.suffix}"
+            out.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy(f, out)
+    for f in (src / "sequences" / SEQ / "landmarks").glob("cam_*.npz"):
+        with np.load(f) as z:
+            d = {k: z[k] for k in z.files}
+        d["frames"] = d["frames"] + 100
+        write_npz(dst / "sequences" / SEQ / "landmarks" / f.name, **d)
+    sel = run_keyframes(tmp_path, SUBJECT, SEQ, tmp_path / "kf", cfg=KeyframeConfig(num_keyframes=4))
+    assert min(sel.frames) >= 100
+    fit = run_fit_head(tmp_path, SUBJECT, SEQ, tmp_path / "kf" / "keyframes.json", tmp_path / "head")
+    assert fit.frames.tolist() == sel.frames and np.all(fit.reprojection_error_px < 2.5)
+    summary = run_targets(tmp_path, SUBJECT, SEQ, tmp_path / "head" / "head.npz", tmp_path / "targets")
+    assert sorted(int(p.stem.split("_")[1]) for p in (tmp_path / "targets").glob("frame_*.npz")) == sel.frames
+    assert summary
+
+
 def test_all_frames_with_smoothness(truth):
     """Consecutive frames get the temporal term; every frame stays within the error bounds."""
     from vid2haircut.front.headfile import base_landmarks

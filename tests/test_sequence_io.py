@@ -176,3 +176,60 @@ def test_error_bad_npz_names_file(dataset: Path) -> None:
                   translation=np.zeros((2, 3)), scale=np.array(scale))
         with pytest.raises(ValueError, match=r"head_tracking\.npz: 'scale' must be one positive number"):
             seq.tracking()
+
+
+def test_error_frames_and_values_of_npz_files(dataset: Path) -> None:
+    """Frame numbers must be whole, distinct numbers; values numeric; translations metres."""
+    root = dataset / "subj" / "sequences" / "SEQ"
+    seq = open_sequence(dataset, "subj", "SEQ")
+    lmk = root / "landmarks" / "cam_b2.npz"
+    for frames, message in [(np.array([0.0, 1.6, 2.0]), r"'frames' must hold whole frame numbers, got \[1.6\]"),
+                            (np.array([0, 1, 1]), r"'frames' lists frames \[1\] more than once"),
+                            (np.array([0, -1, 2]), r"'frames' has negative frame numbers \[-1\]"),
+                            (np.array(["a", "b", "c"]), "'frames' must hold frame numbers")]:
+        write_npz(lmk, frames=frames, lmk68=np.zeros((3, 68, 2)))
+        with pytest.raises(ValueError, match=rf"cam_b2\.npz: {message}"):
+            seq.landmarks()
+    write_npz(lmk, frames=np.arange(3), lmk68=np.full((3, 68, 2), "x"))
+    with pytest.raises(ValueError, match=r"cam_b2\.npz: 'lmk68' must be numeric"):
+        seq.landmarks()
+    trk = root / "tracking" / "head_tracking.npz"
+    write_npz(trk, frames=np.array([0.0, 0.5]), rotation=np.zeros((2, 3)), translation=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"head_tracking\.npz: 'frames' must hold whole frame numbers"):
+        seq.tracking()
+    write_npz(trk, frames=np.arange(2), rotation=np.zeros((2, 3)), translation=np.full((2, 3), 1e9))
+    with pytest.raises(ValueError, match=r"head_tracking\.npz: 'translation' is in metres"):
+        seq.tracking()
+    write_npz(trk, frames=np.arange(2), rotation=np.zeros((2, 3)), translation=np.zeros((2, 3)),
+              scale=np.array(["x"]))
+    with pytest.raises(ValueError, match=r"head_tracking\.npz: 'scale' must be numeric"):
+        seq.tracking()
+
+
+def test_error_landmark_file_of_other_frames(dataset: Path) -> None:
+    from vid2haircut.front.landmarks import sequence_landmarks
+
+    root = dataset / "subj" / "sequences" / "SEQ"
+    write_landmarks(root, "b2", np.arange(100, 103), np.zeros((3, 68, 2)), np.ones(3, bool))
+    seq = open_sequence(dataset, "subj", "SEQ")
+    with pytest.raises(ValueError, match=r"cam_b2\.npz: none of the 3 frames asked for \(0\.\.2\) is in the "
+                                         r"landmark file \(its frames: 100\.\.102\)"):
+        sequence_landmarks(seq)
+    assert sequence_landmarks(seq, [0, 101]).valid.tolist() == [False, True]
+
+
+def test_error_masks_written_as_0_1(dataset: Path) -> None:
+    root = dataset / "subj" / "sequences" / "SEQ"
+    m = np.zeros((H, W), np.uint8)
+    m[4:9, 5:20] = 1
+    write_image(frame_path(root, "hair_masks", "b2", 0, "png"), m)
+    write_image(frame_path(root, "alpha_maps", "b2", 1, "png"), m)
+    seq = open_sequence(dataset, "subj", "SEQ")
+    with pytest.raises(ValueError, match=r"hair_masks.*frame_00000\.png: values are only 0 and 1, but hair masks"):
+        seq.read_hair_mask(0)
+    with pytest.raises(ValueError, match=r"alpha_maps.*frame_00001\.png: values are only 0 and 1"):
+        seq.read_alpha(1)
+    write_image(frame_path(root, "hair_masks", "b2", 0, "png"), m * 255)
+    assert seq.read_hair_mask(0).max() == 1.0
+    write_image(frame_path(root, "hair_masks", "b2", 0, "png"), m * 0)  # an empty mask stays valid
+    assert seq.read_hair_mask(0).max() == 0.0

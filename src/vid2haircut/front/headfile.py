@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vid2haircut.front.pose import SHAPE_NAMES, HeadFit
+from vid2haircut.io.checks import float_array, frame_numbers
 
 
 def resolve_head(spec: str, shape: np.ndarray | None = None, landmark_embedding: str | None = None):
@@ -86,6 +87,8 @@ def save_head_fit(path: str | Path, fit: HeadFit, serial: str, source: str = "la
 
 def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
     """Read ``head.npz`` -> (HeadFit, {"source", "serial", "landmark_embedding"}); errors name the file."""
+    from vid2haircut.head import HEAD_NAMES
+
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: head fit file not found")
@@ -98,20 +101,31 @@ def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
     missing = [k for k in need if k not in d]
     if missing:
         raise ValueError(f"{path}: missing key(s) {missing}")
-    m = len(d["frames"])
+    frames = frame_numbers(d["frames"], path)
+    m = len(frames)
     if m == 0:
         raise ValueError(f"{path}: no frames (the head fit kept no keyframe)")
-    if d["world_from_head"].shape != (m, 4, 4):
-        raise ValueError(f"{path}: world_from_head must be ({m}, 4, 4), got {d['world_from_head'].shape}")
-    if not np.isfinite(d["world_from_head"]).all():
-        raise ValueError(f"{path}: world_from_head has non-finite entries")
+    poses = float_array(d["world_from_head"], path, "world_from_head", (m, 4, 4))
+    rot = poses[:, :3, :3]
+    rigid = (np.abs(rot.transpose(0, 2, 1) @ rot - np.eye(3)).max(axis=(1, 2)) < 1e-4) & (np.linalg.det(rot) > 0)
+    rigid &= (np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) < 1e-9)
+    if not rigid.all():
+        raise ValueError(f"{path}: world_from_head of frames {frames[~rigid][:5].tolist()} is not a rigid "
+                         "transform (rotation and translation, last row 0 0 0 1)")
     shape = d["shape"]
     if shape.shape != (3,) or shape.dtype.kind not in "fiu" or not (np.isfinite(shape).all() and (shape > 0).all()):
         raise ValueError(f"{path}: shape must be 3 positive factors {SHAPE_NAMES}, got {shape.tolist()}")
-    fit = HeadFit(head_model=str(d["head_model"]), shape=d["shape"].astype(np.float64),
-                  frames=d["frames"].astype(np.int64), world_from_head=d["world_from_head"].astype(np.float64),
-                  reprojection_error_px=d["reprojection_error_px"].astype(np.float64),
-                  inliers=d.get("inliers", np.ones((m, 68), bool)).astype(bool),
-                  landmarks_2d=d.get("landmarks_2d", np.full((m, 68, 2), np.nan, np.float32)).astype(np.float32))
+    head_model = str(d["head_model"])
+    if not (head_model in HEAD_NAMES or head_model.endswith(".pkl") or Path(head_model).is_file()):
+        raise ValueError(f"{path}: unknown head model {head_model!r} (built-in: {', '.join(HEAD_NAMES)}, "
+                         "or a FLAME .pkl path)")
+    err = float_array(d["reprojection_error_px"], path, "reprojection_error_px", (m,), finite=False)
+    inliers = d.get("inliers", np.ones((m, 68), bool))
+    if inliers.shape != (m, 68):
+        raise ValueError(f"{path}: 'inliers' must have shape ({m}, 68), got {inliers.shape}")
+    l2d = d.get("landmarks_2d", np.full((m, 68, 2), np.nan, np.float32))
+    l2d = float_array(l2d, path, "landmarks_2d", (m, 68, 2), finite=False, dtype=np.float32)
+    fit = HeadFit(head_model=head_model, shape=d["shape"].astype(np.float64), frames=frames, world_from_head=poses,
+                  reprojection_error_px=err, inliers=inliers.astype(bool), landmarks_2d=l2d)
     return fit, {"source": str(d.get("source", "landmarks")), "serial": str(d.get("serial", "")),
                  "landmark_embedding": str(d.get("landmark_embedding", "")) or None}

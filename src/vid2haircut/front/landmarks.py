@@ -139,7 +139,12 @@ def sequence_landmarks(seq, frames: Iterable[int] | None = None, source: str = "
     data = seq.landmarks() if source in ("auto", "file") else None
     if data is not None:
         f, lmk, valid = data
-        log.info("landmarks: read %s", seq.root / "landmarks" / f"cam_{seq.serial}.npz")
+        path = seq.root / "landmarks" / f"cam_{seq.serial}.npz"
+        if frames and not np.isin(frames, f).any():
+            span = f"{f.min()}..{f.max()}" if len(f) else "none"
+            raise ValueError(f"{path}: none of the {len(frames)} frames asked for ({min(frames)}..{max(frames)}) "
+                             f"is in the landmark file (its frames: {span})")
+        log.info("landmarks: read %s", path)
         return LandmarkSet(f, lmk, valid, "file").subset(frames)
     if source == "file":
         raise FileNotFoundError(f"{seq.root / 'landmarks' / f'cam_{seq.serial}.npz'}: landmark file not found")

@@ -97,10 +97,11 @@ def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframe
     out = Path(out_dir)
     seq = _open(dataset_root, subject, sequence, serial or sel.serial)
     try:
-        missing = [t for t in sel.frames if t >= seq.num_frames]
+        have = set(seq.frame_indices)
+        missing = [t for t in sel.frames if t not in have]
         if missing:
             raise ValueError(f"{keyframes_json}: keyframes {missing} are not in the sequence "
-                             f"({seq.num_frames} frames)")
+                             f"({seq.num_frames} frames, {min(have)}..{max(have)})")
         points = base_landmarks(head_model, landmark_embedding)
         if use_tracking:
             lmk = None

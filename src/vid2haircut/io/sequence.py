@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from vid2haircut.camera import Camera, load_cameras
+from vid2haircut.io.checks import float_array, frame_numbers
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 _FRAME_RE = re.compile(r"^frame_(\d+)\.(jpg|jpeg|png)$", re.IGNORECASE)
@@ -118,6 +119,14 @@ def _load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
     return data
 
 
+def _check_0_255(img: np.ndarray, path: Path, what: str) -> None:
+    """Refuse an 8-bit mask whose largest value is 1: one written as 0/1 instead of 0..255 would
+    otherwise read as (almost) empty, and every stage after it would fit to nothing."""
+    if img.dtype == np.uint8 and img.max(initial=0) == 1:
+        raise ValueError(f"{path}: values are only 0 and 1, but {what} are 0..255 (255 = hair / foreground); "
+                         "multiply the mask by 255")
+
+
 @dataclass
 class Sequence:
     """One camera of one sequence folder (see the module docstring for the layout).
@@ -164,6 +173,7 @@ class Sequence:
             self._alpha = src
         img, p = self._alpha.read(t, grey=True)
         self._check_size(img, p)
+        _check_0_255(img, p, "foreground mattes")
         return img.astype(np.float32) / 255.0
 
     def read_hair_mask(self, t: int) -> np.ndarray | None:
@@ -177,6 +187,7 @@ class Sequence:
         if img is None:
             raise ValueError(f"{p}: unreadable image")
         self._check_size(img, p)
+        _check_0_255(img, p, "hair masks")
         return img.astype(np.float32) / 255.0
 
     def read_depth(self, t: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -198,8 +209,8 @@ class Sequence:
         if not p.is_file():
             return None
         z = _load_npz(p, ("frames", "lmk68"))
-        frames = z["frames"].astype(np.int64).reshape(-1)
-        lmk = z["lmk68"].astype(np.float32)
+        frames = frame_numbers(z["frames"], p)
+        lmk = float_array(z["lmk68"], p, "lmk68", finite=False, dtype=np.float32)  # NaN: a missing landmark
         valid = z["valid"].astype(bool).reshape(-1) if "valid" in z else np.ones(len(frames), bool)
         if lmk.shape != (len(frames), 68, 2) or valid.shape != frames.shape:
             raise ValueError(f"{p}: expected lmk68 (T,68,2) and valid (T,) for T={len(frames)} frames, "
@@ -213,15 +224,13 @@ class Sequence:
         if not p.is_file():
             return None
         z = _load_npz(p, ("frames", "rotation", "translation"))
-        frames = z["frames"].astype(np.int64).reshape(-1)
-        out = {"frames": frames, "rotation": z["rotation"].astype(np.float64),
-               "translation": z["translation"].astype(np.float64),
-               "scale": z["scale"].astype(np.float64).reshape(-1) if "scale" in z else np.ones(1)}
-        for k in ("rotation", "translation"):
-            if out[k].shape != (len(frames), 3):
-                raise ValueError(f"{p}: '{k}' must be ({len(frames)}, 3), got {out[k].shape}")
-            if not np.isfinite(out[k]).all():
-                raise ValueError(f"{p}: '{k}' has non-finite entries")
+        frames = frame_numbers(z["frames"], p)
+        out = {"frames": frames,
+               **{k: float_array(z[k], p, k, (len(frames), 3)) for k in ("rotation", "translation")},
+               "scale": float_array(z["scale"], p, "scale", finite=False).reshape(-1) if "scale" in z else np.ones(1)}
+        if np.abs(out["translation"]).max(initial=0.0) > 1e3:
+            raise ValueError(f"{p}: 'translation' is in metres; {np.abs(out['translation']).max():.3g} is not "
+                             "a head position (more than 1 km from the world origin)")
         if out["scale"].shape != (1,) or not (np.isfinite(out["scale"]).all() and out["scale"][0] > 0):
             raise ValueError(f"{p}: 'scale' must be one positive number, got {out['scale'].tolist()}")
         return out
