@@ -42,6 +42,13 @@ def cal(**kw) -> dict:
     (KF, {"frames": [1.5, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
     (KF, {"frames": [True, 2], "reference": 2, "serial": "c"}, "'frames' must be a list of frame numbers"),
     (KF, {"frames": [1, 2], "reference": "a", "serial": "c"}, "'reference' 'a' must be one of"),
+    (KF, {"frames": [1, 1, 2], "reference": 1, "serial": "c"}, r"'frames' lists frames \[1\] more than once"),
+    (KF, {"frames": [1], "reference": 1, "serial": "c", "scores": []}, "'scores' must map frame numbers"),
+    (KF, {"frames": [1], "reference": 1, "serial": "c", "scores": {"a": {}}}, "'scores' must map frame numbers"),
+    (KF, {"frames": [1], "reference": 1, "serial": "c", "scores": {"1": {"yaw_deg": "x"}}}, "'scores' must map"),
+    (KF, {"frames": [1], "reference": 1, "serial": "c", "rejected": [1]}, "'rejected' must map reasons"),
+    (KF, {"frames": [1], "reference": 1, "serial": "c", "rejected": {"blur": [0.5]}}, "'rejected' must map"),
+    (KF, {"frames": [1], "reference": 1, "serial": "c", "num_frames": "x"}, "'num_frames' must be a whole number"),
 ])
 def test_json_input_errors_name_the_file(tmp_path, name, content, message):
     """Calibration and keyframe files of the wrong types, shapes or values: a ValueError naming the file."""
@@ -217,3 +224,55 @@ def test_an_output_folder_that_is_a_file_is_refused_before_any_work(tmp_path, ca
         assert e.value.code == 2
         assert f"{tmp_path / 'out'}: is a file, cannot hold the output folder" in capsys.readouterr().err
     assert (tmp_path / "out").read_text() == "a file"
+
+
+def _targets(path, **kw):
+    from vid2haircut.io.atomic import write_npz
+
+    hw = (8, 10)
+    d = dict(mask=np.zeros(hw, np.float32), angle=np.zeros(hw, np.float32), confidence=np.zeros(hw, np.float32),
+             depth=np.full(hw, np.nan, np.float32), depth_valid=np.zeros(hw, bool), frame=np.int64(3),
+             mask_source=np.array("hair_masks"))
+    d.update(kw)
+    write_npz(path, **d)
+
+
+def test_targets_file_checks(tmp_path):
+    """Target arrays of other shapes, non-numeric or non-finite values, a frame not that of the
+    file name: a ValueError naming the file and the key (they had surfaced as broadcasting errors
+    or a non-finite loss at step 0)."""
+    from vid2haircut.front.targets.build import load_targets
+
+    path = tmp_path / "frame_00003.npz"
+    _targets(path)
+    assert load_targets(path)["mask"].shape == (8, 10)  # NaN depth where depth_valid is False is fine
+    bad_depth = np.zeros((8, 10), np.float32)
+    bad_depth[2, 2] = np.nan
+    valid = np.zeros((8, 10), bool)
+    valid[2, 2] = True
+    for kw, message in [(dict(mask=np.full((8, 10), np.nan, np.float32)), "'mask' has non-finite"),
+                        (dict(mask=np.full((8, 10), 255.0, np.float32)), r"'mask' must lie in \[0, 1\]"),
+                        (dict(mask=np.full((8, 10), "a")), "'mask' must be numeric"),
+                        (dict(angle=np.zeros((4, 10), np.float32)), r"'angle' must have shape \(8, 10\)"),
+                        (dict(depth_valid=np.zeros((8, 4), bool)), r"'depth_valid' must have shape \(8, 10\)"),
+                        (dict(depth=bad_depth, depth_valid=valid), "'depth' has non-finite entries where"),
+                        (dict(frame=np.int64(4)), "'frame' is 4, not the frame of the file name")]:
+        _targets(path, **kw)
+        with pytest.raises(ValueError, match=f"frame_00003.npz: {message}"):
+            load_targets(path)
+
+
+def test_targets_of_another_size_than_the_camera_name_both(tmp_path):
+    from vid2haircut.fit.data import load_fit_data
+    from vid2haircut.io.atomic import write_npz
+
+    (tmp_path / "subj" / "calibration").mkdir(parents=True)
+    (tmp_path / "subj" / "calibration" / CAM).write_text(json.dumps(cal()))
+    (tmp_path / KF).write_text(json.dumps({"frames": [3], "reference": 3, "serial": "c"}))
+    write_npz(tmp_path / "head.npz", head_model=np.array("proxy-v1"), shape=np.ones(3), frames=np.array([3]),
+              world_from_head=np.eye(4)[None], reprojection_error_px=np.zeros(1))
+    (tmp_path / "targets").mkdir()
+    _targets(tmp_path / "targets" / "frame_00003.npz")
+    with pytest.raises(ValueError, match=r"frame_00003\.npz: target size \(10, 8\) does not match the camera "
+                                         r"\(512x512\) of .*camera_params\.json"):
+        load_fit_data(tmp_path, "subj", tmp_path / KF, tmp_path / "head.npz", tmp_path / "targets")

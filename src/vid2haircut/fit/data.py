@@ -237,6 +237,7 @@ def load_fit_data(dataset_root: str | Path, subject: str, keyframes_json: str | 
     from vid2haircut.front.headfile import load_head_fit, resolve_head
     from vid2haircut.front.keyframes import load_keyframes
     from vid2haircut.front.targets.build import load_targets
+    from vid2haircut.io.sequence import calibration_path
 
     sel = load_keyframes(keyframes_json)
     fit, extra = load_head_fit(head_npz)
@@ -252,7 +253,7 @@ def load_fit_data(dataset_root: str | Path, subject: str, keyframes_json: str | 
         d = load_targets(path)
         if np.asarray(d["mask"]).shape != (cam.height, cam.width):
             raise ValueError(f"{path}: target size {np.asarray(d['mask']).shape[::-1]} does not match the camera "
-                             f"({cam.width}x{cam.height}) of {calib}")
+                             f"({cam.width}x{cam.height}) of {calibration_path(dataset_root, subject)}")
         targets.append(d)
     head = resolve_head(fit.head_model, fit.shape)
     poses = np.stack([fit.world_from_head[fitted.index(t)] for t in order])

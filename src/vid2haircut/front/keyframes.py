@@ -110,13 +110,27 @@ def load_keyframes(path: str | Path) -> KeyframeSelection:
         raise ValueError(f"{path}: 'frames' must be a list of frame numbers (whole numbers >= 0), "
                          f"got {d['frames']!r:.80}")
     frames = [int(t) for t in d["frames"]]
+    if len(set(frames)) != len(frames):
+        raise ValueError(f"{path}: 'frames' lists frames {sorted({t for t in frames if frames.count(t) > 1})} "
+                         "more than once")
     if not _is_frame(d["reference"]) or not frames or int(d["reference"]) not in frames:
         raise ValueError(f"{path}: 'reference' {d['reference']!r} must be one of 'frames' {frames}")
+    scores = d.get("scores", {})
+    if not (isinstance(scores, dict) and all(k.isdigit() and isinstance(v, dict) for k, v in scores.items())
+            and all(isinstance(x, (int, float)) and not isinstance(x, bool) for v in scores.values()
+                    for x in v.values())):
+        raise ValueError(f"{path}: 'scores' must map frame numbers to {{name: number}}, got {scores!r:.80}")
+    rejected = d.get("rejected", {})
+    if not (isinstance(rejected, dict) and all(isinstance(v, list) and all(_is_frame(t) for t in v)
+                                               for v in rejected.values())):
+        raise ValueError(f"{path}: 'rejected' must map reasons to lists of frame numbers, got {rejected!r:.80}")
+    if not _is_frame(d.get("num_frames", 0)):
+        raise ValueError(f"{path}: 'num_frames' must be a whole number >= 0, got {d['num_frames']!r:.40}")
     return KeyframeSelection(frames=frames, reference=int(d["reference"]),
-                             scores={int(t): s for t, s in d.get("scores", {}).items()},
+                             scores={int(t): s for t, s in scores.items()},
                              serial=str(d["serial"]), num_frames=int(d.get("num_frames", 0)),
                              landmark_source=str(d.get("landmark_source", "")),
-                             rejected={k: list(v) for k, v in d.get("rejected", {}).items()})
+                             rejected={str(k): [int(t) for t in v] for k, v in rejected.items()})
 
 
 def sharpness(image: np.ndarray, box: tuple[int, int, int, int] | None = None) -> float:

@@ -30,6 +30,7 @@ from vid2haircut.front.pose import HeadFit, project_landmarks, shape_axes
 from vid2haircut.front.targets.depth import DepthConfig, depth_targets
 from vid2haircut.front.targets.mask import MaskConfig, hair_mask_fallback
 from vid2haircut.front.targets.orientation import GaborConfig, orientation_map
+from vid2haircut.io.checks import float_array, frame_numbers
 
 log = logging.getLogger(__name__)
 
@@ -140,4 +141,20 @@ def load_targets(path: str | Path) -> dict[str, np.ndarray]:
     missing = [k for k in ("mask", "angle", "confidence", "depth", "depth_valid", "frame") if k not in d]
     if missing:
         raise ValueError(f"{path}: missing key(s) {missing}")
+    mask = float_array(d["mask"], path, "mask", (None, None), dtype=np.float32)
+    hw = mask.shape
+    if mask.size and not (mask.min() >= 0.0 and mask.max() <= 1.0):
+        raise ValueError(f"{path}: 'mask' must lie in [0, 1], got {mask.min():.3g}..{mask.max():.3g}")
+    d["mask"] = mask
+    for k in ("angle", "confidence"):
+        d[k] = float_array(d[k], path, k, hw, dtype=np.float32)
+    d["depth_valid"] = float_array(d["depth_valid"], path, "depth_valid", hw, finite=False) != 0
+    d["depth"] = float_array(d["depth"], path, "depth", hw, finite=False, dtype=np.float32)
+    if not np.isfinite(d["depth"][d["depth_valid"]]).all():
+        raise ValueError(f"{path}: 'depth' has non-finite entries where 'depth_valid' is set")
+    frame = frame_numbers(np.asarray(d["frame"]).reshape(-1), path, "frame")
+    if frame.shape != (1,):
+        raise ValueError(f"{path}: 'frame' must be one frame number, got {frame.tolist()}")
+    if path.stem.startswith("frame_") and path.stem[6:].isdigit() and int(path.stem[6:]) != frame[0]:
+        raise ValueError(f"{path}: 'frame' is {frame[0]}, not the frame of the file name")
     return d
