@@ -276,3 +276,18 @@ def test_targets_of_another_size_than_the_camera_name_both(tmp_path):
     with pytest.raises(ValueError, match=r"frame_00003\.npz: target size \(10, 8\) does not match the camera "
                                          r"\(512x512\) of .*camera_params\.json"):
         load_fit_data(tmp_path, "subj", tmp_path / KF, tmp_path / "head.npz", tmp_path / "targets")
+
+
+def test_front_stages_check_their_outputs_before_any_work(tmp_path):
+    """keyframes and fit_head write two files each; a folder where the second goes is found before
+    the sequence is read (it had been found after the work, with the first file already replaced)."""
+    from vid2haircut.front.stages import run_fit_head, run_keyframes
+
+    (tmp_path / "kf" / "keyframes.json").mkdir(parents=True)
+    with pytest.raises(IsADirectoryError, match=r"keyframes\.json: is a folder"):
+        run_keyframes(tmp_path / "no_such_root", "s", "q", tmp_path / "kf")
+    (tmp_path / KF).write_text(json.dumps({"frames": [1], "reference": 1, "serial": "c"}))
+    (tmp_path / "head" / "head.npz").mkdir(parents=True)
+    with pytest.raises(IsADirectoryError, match=r"head\.npz: is a folder"):
+        run_fit_head(tmp_path / "no_such_root", "s", "q", tmp_path / KF, tmp_path / "head")
+    assert sorted(p.name for p in tmp_path.rglob("*.png")) == []

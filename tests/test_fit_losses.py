@@ -168,6 +168,17 @@ def test_overrides_nested_dotted_and_errors(tmp_path):
     assert apply_overrides(Stage2Config(), {"length_spread": 0}).length_spread == 0.0
     with pytest.raises(ValueError, match="'tip_scatter' must be in"):
         apply_overrides(Stage2Config(), {"tip_scatter": 0.1})
+    # counts, sizes, rates and weights out of range; NaN anywhere (each had run, some writing an unfitted output)
+    for key, value, message in [("iterations", -5, r"'iterations' must be in \[1, inf\)"),
+                                ("n_dense", -3, r"'n_dense' must be in \[1, inf\)"),
+                                ("render", {"size": 0}, r"'render.size' must be in \[8, 4097\)"),
+                                ("seed", -1, r"'seed' must be in \[0, "),
+                                ("weights.depth", -0.1, r"'weights.depth' must be in \[0, inf\)"),
+                                ("lr_z", float("nan"), "'lr_z' must be a finite number"),
+                                ("weights.silhouette", float("inf"), "'weights.silhouette' must be a finite")]:
+        with pytest.raises(ValueError, match=message):
+            apply_overrides(Stage2Config(), {key: value})
+    assert apply_overrides(Stage2Config(), {"dense_from_step": -1, "weights.outside": 0}).dense_from_step == -1
     p = tmp_path / "s.json"
     p.write_text('{"iterations": 3}')
     assert load_settings(str(p)) == {"iterations": 3} and load_settings('{"a": 1}') == {"a": 1}

@@ -310,3 +310,43 @@ def test_smooth_direction_forms_measure_against_the_start(toy, form):
     with torch.no_grad():
         model.zmap.delta.add_(torch.randn(model.zmap.delta.shape, generator=gen, dtype=z0.dtype))
     assert float(model.get_loss_dict(0)["smooth_direction"]) > 0.0
+
+
+def test_bad_stage_files_and_outputs(toy, tmp_path, caplog):
+    """A folder where an output file goes stops Stage 1 before the fit (the old outputs stay whole);
+    an unreadable or foreign checkpoint is set aside (a warning, a fresh fit); a truncated hair map
+    is named."""
+    import logging
+
+    from vid2haircut.fit.pipeline import run_stage1, run_stage2
+
+    files = write_toy_files(toy, tmp_path / "data")
+    common = (files["dataset_root"], "toy", files["keyframes"], files["head"], files["targets"])
+    s1_settings = {"iterations": 2, "map_res": 12, "render": {"n_points": 16, "size": 40}, "n_dense": 50}
+    s1 = tmp_path / "s1"
+    run_stage1(*common, s1, codec_path=files["codec"], progress=False, settings=s1_settings)
+    old = (s1 / "strands.npz").read_bytes()
+    (s1 / "loss_curve.png").unlink()
+    (s1 / "loss_curve.png").mkdir()
+    with pytest.raises(IsADirectoryError, match=r"loss_curve\.png: is a folder"):
+        run_stage1(*common, s1, codec_path=files["codec"], progress=False, settings={**s1_settings, "seed": 5})
+    assert (s1 / "strands.npz").read_bytes() == old
+    (s1 / "loss_curve.png").rmdir()
+
+    out = tmp_path / "s2"
+    out.mkdir()
+    s2_settings = {**FAST, "iterations": 2, "render": {"n_points": 16, "size": 40}, "n_dense": 50}
+    for junk in (b"PK\x03\x04 not a whole checkpoint", None):
+        if junk is None:
+            torch.save([1, 2], out / "checkpoint.pt")
+        else:
+            (out / "checkpoint.pt").write_bytes(junk)
+        with caplog.at_level(logging.WARNING, logger="vid2haircut.fit.pipeline"):
+            record = run_stage2(*common, s1, out, settings=s2_settings, progress=False)
+        assert record["resumed_from_step"] is None
+        assert "checkpoint.pt" in caplog.text and "starting afresh" in caplog.text
+        caplog.clear()
+
+    (s1 / "hairmap.npz").write_bytes((s1 / "hairmap.npz").read_bytes()[:500])
+    with pytest.raises(ValueError, match=r"hairmap\.npz: not a hair map \.npz \(BadZipFile"):
+        run_stage2(*common, s1, tmp_path / "s2b", settings=s2_settings, progress=False)

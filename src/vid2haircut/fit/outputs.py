@@ -28,6 +28,7 @@ from vid2haircut.fit.carve import carve_strands
 from vid2haircut.fit.components import LossWeights
 from vid2haircut.fit.trainer import History
 from vid2haircut.io.atomic import atomic_path, write_image, write_json, write_npz
+from vid2haircut.io.checks import float_array
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 
@@ -50,10 +51,12 @@ def load_hairmap(path: str | Path) -> tuple[torch.Tensor, torch.Tensor, str]:
     try:
         with np.load(path, allow_pickle=False) as d:
             z, mask, fp = d["z"], d["mask"], str(d["codec_fingerprint"]) if "codec_fingerprint" in d else ""
-    except (KeyError, ValueError, OSError) as e:
-        raise ValueError(f"{path}: not a hair map .npz ({e})") from None
+    except Exception as e:  # noqa: BLE001 - a missing key, a truncated zip (BadZipFile), pickled objects ...
+        raise ValueError(f"{path}: not a hair map .npz ({type(e).__name__}: {e})") from None
     if z.ndim != 3 or mask.shape != z.shape[1:]:
         raise ValueError(f"{path}: z must be (K,R,R) and mask (R,R), got {z.shape} and {mask.shape}")
+    z = float_array(z, path, "z", dtype=np.float32)
+    mask = float_array(mask, path, "mask", dtype=np.float32)
     return torch.as_tensor(z), torch.as_tensor(mask), fp
 
 

@@ -24,6 +24,7 @@ from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, sa
                                      write_hairmap, write_loss_curve, write_record, write_renders, write_strands)
 from vid2haircut.fit.stage1 import FitResult, fit_stage1, initial_hairmap, prior_view_input
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2
+from vid2haircut.io.atomic import check_outputs
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.machine import machine_info
 from vid2haircut.prior.codec import StrandCodec
@@ -68,6 +69,16 @@ def _write_common(out_dir: Path, res: FitResult, data: FitData, codec: StrandCod
     return cut
 
 
+COMMON_OUTPUTS = ("strands.npz", "guides.npz", "hairmap.npz", "codec.npz", "loss_curve.png")
+
+
+def _check_outputs(out_dir: Path, data: FitData, names) -> None:
+    """Refuse, before the fit, output paths that cannot be written (a folder in place of a file, a
+    file in place of the folder): a failure after the fit would leave the first files replaced."""
+    renders = [Path("renders") / f"frame_{int(t):05d}.png" for t in data.frames]
+    check_outputs([out_dir / n for n in (*COMMON_OUTPUTS, *names, *renders)])
+
+
 def _final_terms(res: FitResult) -> dict:
     return {k: v[-1] for k, v in res.history.terms.items()}
 
@@ -97,6 +108,7 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
         raise ValueError("stage1 needs a prior folder (--prior-dir) or a strand codec (--codec)")
     data = load_fit_data(dataset_root, subject, keyframes_json, head_npz, targets_dir, size=cfg.render.size,
                          n_keyframes=1, occlude_head=cfg.render.occlude_head, device=cfg.device)
+    _check_outputs(out, data, ("stage1.json", "prior_hairmap.npz", "prior_strands.npz"))
     prior = None
     if prior_dir is not None:
         from vid2haircut.prior.model import load_prior
@@ -165,12 +177,20 @@ def run_stage2(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
         raise ValueError(f"{s1 / 'hairmap.npz'}: K={z.shape[0]} does not match the codec's K={codec.k}")
     data = load_fit_data(dataset_root, subject, keyframes_json, head_npz, targets_dir, size=cfg.render.size,
                          n_keyframes=cfg.n_keyframes, occlude_head=cfg.render.occlude_head, device=cfg.device)
+    _check_outputs(out, data, ("stage2.json", "checkpoint.pt", "deform.pt"))
     sig = _signature(cfg, data, z, mask)
     ckpt_path = out / "checkpoint.pt"
     state = None
     if resume and ckpt_path.is_file():
-        state = load_torch(ckpt_path)
-        if state.get("signature") != sig:
+        try:
+            state = load_torch(ckpt_path)
+        except ValueError as e:  # a checkpoint is only a cache of the fit: start afresh, it is rewritten
+            log.warning("%s; starting afresh", e)
+        if not isinstance(state, dict):
+            if state is not None:
+                log.warning("%s: not a Stage 2 checkpoint (a %s); starting afresh", ckpt_path, type(state).__name__)
+            state = None
+        elif state.get("signature") != sig:
             log.info("%s: made with other inputs or settings; starting afresh", ckpt_path)
             state = None
 

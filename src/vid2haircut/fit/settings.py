@@ -24,7 +24,23 @@ __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve_tolerance": (0.0, 1.0e3),
            "carve_min_fraction": (0.0, math.nextafter(1.0, 2.0)), "pca_from": (0, math.inf),
            "smooth_direction_from": (0, math.inf), "smooth_length_from": (0, math.inf),
-           "smooth_seen_weight": (0.0, math.inf), "smooth_unseen_weight": (0.0, math.inf)}
+           "smooth_seen_weight": (0.0, math.inf), "smooth_unseen_weight": (0.0, math.inf),
+           # counts, sizes and steps
+           "iterations": (1, math.inf), "coarse_steps": (0, math.inf), "coarse_components": (0, math.inf),
+           "map_res": (2, 1025), "n_dense": (1, math.inf), "seed": (0, 2**63), "canonical_steps": (0, math.inf),
+           "ramp_steps": (0, math.inf), "n_keyframes": (1, math.inf), "frames_per_step": (0, math.inf),
+           "lr_decay_steps": (0, math.inf), "checkpoint_every": (0, math.inf), "render_dense": (0, math.inf),
+           "dense_from_step": (-1, math.inf), "size": (8, 4097), "n_points": (2, 1025), "bins": (1, 256),
+           # rates, widths, fractions
+           "lr_prior": (0.0, math.inf), "weight_decay_prior": (0.0, math.inf), "lr_z": (0.0, math.inf),
+           "lr_mlp": (0.0, math.inf), "lr_codes": (0.0, math.inf), "lr_final": (0.0, math.inf),
+           "strand_width": (1e-6, math.inf), "dense_width": (1e-6, math.inf), "depth_bin": (1e-6, math.inf),
+           "mask_threshold": (0.0, 1.0), "observed_fraction": (0.0, math.nextafter(1.0, 2.0)),
+           "silhouette_opacity": (1e-3, math.nextafter(1.0, 2.0)),
+           "dense_silhouette_opacity": (1e-3, math.nextafter(1.0, 2.0)),
+           "vis_weight": (0.0, math.nextafter(1.0, 2.0)), "dense_vis_weight": (0.0, math.nextafter(1.0, 2.0)),
+           "max_offset": (0.0, math.inf), "code_init_std": (0.0, math.inf)}
+# Every loss weight (``weights.*``) lies in [0, inf): a negative weight would reward the term.
 # Settings that name one of a few modes, checked the same way.
 _CHOICES = {"depth_align": DEPTH_ALIGNMENTS, "smooth_direction_form": SMOOTH_DIRECTION_FORMS,
             "hidden_direction_from": HIDDEN_DIRECTION_SOURCES}
@@ -51,8 +67,11 @@ def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
                 raise ValueError(f"settings: {full!r} must be a number, got {value!r}")
             if isinstance(cur, int) and not float(value).is_integer():
                 raise ValueError(f"settings: {full!r} must be an integer, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"settings: {full!r} must be a finite number, got {value!r}")
             value = type(cur)(value)
-            low, high = _RANGES.get(name, (-math.inf, math.inf))
+            weight = type(obj).__name__ == "LossWeights"
+            low, high = (0.0, math.inf) if weight else _RANGES.get(name, (-math.inf, math.inf))
             if not low <= value < high:
                 raise ValueError(f"settings: {full!r} must be in [{low:g}, {high:g}), got {value!r}")
         if name in _CHOICES and value not in _CHOICES[name]:

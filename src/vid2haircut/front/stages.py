@@ -19,7 +19,7 @@ import numpy as np
 
 from vid2haircut.front.keyframes import KeyframeConfig, KeyframeSelection, load_keyframes, select_keyframes
 from vid2haircut.front.pose import HeadFit, PoseFitConfig, fit_head_poses, shape_axes
-from vid2haircut.io.atomic import write_image, write_json
+from vid2haircut.io.atomic import check_outputs, write_image, write_json
 
 log = logging.getLogger(__name__)
 
@@ -40,6 +40,7 @@ def run_keyframes(dataset_root: str | Path, subject: str, sequence: str, out_dir
     from vid2haircut.front.headfile import base_landmarks
 
     out = Path(out_dir)
+    check_outputs([out / "keyframes.png", out / "keyframes.json"])
     seq = _open(dataset_root, subject, sequence, serial)
     try:
         sel = select_keyframes(seq, base_landmarks(head_model, landmark_embedding), cfg)
@@ -95,6 +96,7 @@ def run_fit_head(dataset_root: str | Path, subject: str, sequence: str, keyframe
 
     sel = load_keyframes(keyframes_json)
     out = Path(out_dir)
+    check_outputs([out / "head_overlay.png", out / "head.npz"])
     seq = _open(dataset_root, subject, sequence, serial or sel.serial)
     try:
         have = set(seq.frame_indices)
