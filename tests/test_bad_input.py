@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -291,3 +292,25 @@ def test_front_stages_check_their_outputs_before_any_work(tmp_path):
     with pytest.raises(IsADirectoryError, match=r"head\.npz: is a folder"):
         run_fit_head(tmp_path / "no_such_root", "s", "q", tmp_path / KF, tmp_path / "head")
     assert sorted(p.name for p in tmp_path.rglob("*.png")) == []
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--landmark-noise", "-1", "landmark_noise_px and color_jitter must be >= 0"),
+    ("--landmark-noise", "nan", "landmark_noise_px must be finite"),
+    ("--yaw-max", "nan", "yaw_max_deg must be finite"),
+    ("--yaw-max", "200", r"yaw_max_deg must be in \[0, 90\]"),
+    ("--sway-max", "nan", "sway_max_m must be finite"),
+    ("--serial", "a/b", "serial must be letters, digits"),
+])
+def test_synthesize_overwrite_keeps_the_old_sequence_on_a_bad_value(tmp_path, caplog, option, value, message):
+    """--overwrite replaces a sequence only once every value is checked (a bad one had deleted the
+    old folder and left a half-written one; NaN values had run through)."""
+    seq = tmp_path / "subj" / "sequences" / "SEQ"
+    seq.mkdir(parents=True)
+    (seq / "old.txt").write_text("keep")
+    argv = ["synthesize", "--root", str(tmp_path), "--subject", "subj", "--seq", "SEQ", "--frames", "2",
+            "--size", "32", "--strands", "4", "--points", "4", "--overwrite", option, value]
+    assert main(argv) == 2
+    assert re.search(message, caplog.text), caplog.text
+    assert [p.name for p in seq.iterdir()] == ["old.txt"]
+    assert not (tmp_path / "subj" / "calibration").exists()

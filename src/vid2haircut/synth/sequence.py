@@ -13,6 +13,7 @@ Images are JPEG (OpenCV quality 95) by default to keep the folder small (NeRSemb
 from __future__ import annotations
 
 import logging
+import math
 import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -90,8 +91,27 @@ class SynthConfig:
                              f"(got {self.n_frames} frames, {self.width}x{self.height})")
         if self.n_strands < 1 or self.n_points < 2:
             raise ValueError(f"need n_strands >= 1 and n_points >= 2 (got {self.n_strands}, {self.n_points})")
+        numbers = {k: getattr(self, k) for k in ("landmark_noise_px", "yaw_max_deg", "pitch_max_deg", "sway_max_m",
+                                                  "sway_gain", "head_scale", "head_width", "head_depth", "head_crown",
+                                                  "camera_distance_m", "head_fill", "color_jitter")}
+        bad = [k for k, v in numbers.items() if not math.isfinite(v)]
+        if bad:
+            raise ValueError(f"{', '.join(bad)} must be finite numbers (got {[numbers[k] for k in bad]})")
         if self.sway_max_m < 0 or self.sway_gain < 0:
             raise ValueError(f"sway_max_m and sway_gain must be >= 0 (got {self.sway_max_m}, {self.sway_gain})")
+        if self.landmark_noise_px < 0 or self.color_jitter < 0:
+            raise ValueError(f"landmark_noise_px and color_jitter must be >= 0 "
+                             f"(got {self.landmark_noise_px}, {self.color_jitter})")
+        if not (0 <= self.yaw_max_deg <= 90 and 0 <= self.pitch_max_deg <= 60):
+            raise ValueError(f"yaw_max_deg must be in [0, 90] and pitch_max_deg in [0, 60] "
+                             f"(got {self.yaw_max_deg}, {self.pitch_max_deg})")
+        shape = [self.head_scale, self.head_width, self.head_depth, self.head_crown]
+        if min(shape) <= 0 or self.camera_distance_m <= 0 or not 0 < self.head_fill <= 1:
+            raise ValueError(f"head factors and camera distance must be > 0 and head_fill in (0, 1] "
+                             f"(got {shape}, {self.camera_distance_m}, {self.head_fill})")
+        if not self.serial or not all(c.isalnum() or c in "-_." for c in self.serial) or self.serial in (".", ".."):
+            raise ValueError(f"serial must be letters, digits, '-', '_' or '.' (a folder name part), "
+                             f"got {self.serial!r}")
 
 
 def load_head(cfg: SynthConfig):
