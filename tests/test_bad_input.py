@@ -314,3 +314,36 @@ def test_synthesize_overwrite_keeps_the_old_sequence_on_a_bad_value(tmp_path, ca
     assert re.search(message, caplog.text), caplog.text
     assert [p.name for p in seq.iterdir()] == ["old.txt"]
     assert not (tmp_path / "subj" / "calibration").exists()
+
+
+def test_strand_files_with_bad_values_are_named(tmp_path):
+    """NaN points in .data, a .hair header claiming more points than the file holds (it had tried
+    a 32 GiB allocation), per-strand colours / widths / transparencies of the wrong shape or NaN
+    (export had written hair.usda before failing at hair.hair): a ValueError naming the file."""
+    import struct
+
+    from vid2haircut.export.export import export_files
+    from vid2haircut.io.atomic import write_npz
+    from vid2haircut.io.strand_formats import load_strands
+
+    data = tmp_path / "nan.data"
+    pts = np.ones((2, 3), np.float32)
+    pts[1, 0] = np.nan
+    data.write_bytes(struct.pack("<i", 1) + struct.pack("<i", 2) + pts.tobytes())
+    with pytest.raises(ValueError, match=r"nan\.data: StrandSet: points contain NaN"):
+        load_strands(data)
+    hair = tmp_path / "big.hair"
+    hair.write_bytes(b"HAIR" + struct.pack("<IIIIfff3f", 0xFFFFFFFF, 4, 2, 3, 1e-4, 0, 0, 0, 0, 0) + bytes(88))
+    with pytest.raises(ValueError, match=r"big\.hair: malformed: the header says 4294967295 strands"):
+        load_strands(hair)
+    good = np.zeros((5, 4, 3), np.float32)
+    good[:, :, 2] = np.arange(4) * 0.01
+    for key, value, message in [("color", np.zeros(5), r"'color' must be numeric of shape \(5, 3\)"),
+                                ("color", np.zeros((5, 4)), r"'color' must be numeric of shape \(5, 3\)"),
+                                ("width", np.zeros((5, 2)), r"'width' must be numeric of shape \(5,\)"),
+                                ("transparency", np.zeros((5, 2)), r"'transparency' must be numeric"),
+                                ("color", np.full((5, 3), np.nan), "'color' has NaN")]:
+        write_npz(tmp_path / "s.npz", points=good, **{key: value})
+        with pytest.raises(ValueError, match=rf"s\.npz: .*{message}"):
+            export_files(tmp_path / "s.npz", tmp_path / "out")
+        assert not (tmp_path / "out").exists()

@@ -261,6 +261,11 @@ def polyline_tangents(points: np.ndarray) -> np.ndarray:
     return t.astype(np.float32)
 
 
+KNOWN_ATTRIBUTES = {"color": (3,), "width": (), "transparency": ()}
+"""Per-strand attributes the exporters write, with their shape after the leading N: checked on
+construction, so a file with a wrong one is refused when read, not half way through an export."""
+
+
 @dataclass(frozen=True)
 class StrandSet:
     """A hairstyle: N strands of P points each, root first, in metres.
@@ -294,6 +299,13 @@ class StrandSet:
             if arr.ndim == 0 or arr.shape[0] != pts.shape[0]:
                 raise ValueError(f"StrandSet: attribute {key!r} must have leading dimension "
                                  f"N={pts.shape[0]}, got shape {arr.shape}")
+            if key in KNOWN_ATTRIBUTES:
+                want = (pts.shape[0], *KNOWN_ATTRIBUTES[key])
+                if arr.shape != want or arr.dtype.kind not in "biuf":
+                    raise ValueError(f"StrandSet: attribute {key!r} must be numeric of shape {want}, "
+                                     f"got {arr.dtype} {arr.shape}")
+                if not np.isfinite(arr).all():
+                    raise ValueError(f"StrandSet: attribute {key!r} has NaN or infinite values")
             attrs[str(key)] = arr
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "attributes", attrs)

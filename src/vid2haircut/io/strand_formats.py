@@ -76,7 +76,10 @@ def load_strands(path: str | os.PathLike, n_points: int | None = None) -> Strand
     if len(keep) < len(polylines):
         polylines = [polylines[i] for i in keep]
         attrs = {k: v[keep] for k, v in attrs.items()}
-    return StrandSet.from_polylines(polylines, n_points, attrs, head)
+    try:
+        return StrandSet.from_polylines(polylines, n_points, attrs, head)
+    except ValueError as e:  # NaN points, attributes of the wrong shape ...
+        raise ValueError(f"{path}: {e}") from None
 
 
 def save_strands(path: str | os.PathLike, strands: StrandSet) -> Path:
@@ -188,6 +191,10 @@ def _read_hair(path: Path) -> tuple[list[np.ndarray], dict[str, np.ndarray], str
         raise ValueError(f"{path}: malformed: signature {sig!r} at byte offset 0 is not b'HAIR'")
     if not flags & _HAIR_POINTS:
         raise ValueError(f"{path}: malformed: header flags {flags:#x} (byte offset 12) say the file has no points array")
+    room = len(buf.data) - buf.pos
+    if 12 * total > room or (not flags & _HAIR_SEGMENTS and n > total):
+        raise ValueError(f"{path}: malformed: the header says {n} strands of {total} points (byte offsets 4, 8), "
+                         f"more than the file's {room} bytes after it can hold")
     if flags & _HAIR_SEGMENTS:
         seg = buf.array("<u2", n, f"the segments array ({n} strands)").astype(np.int64)
     else:
