@@ -97,6 +97,9 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
         if key not in data:
             raise ValueError(f"{path}: missing key '{key}'")
     K = _finite_matrix(path, "'intrinsics'", data["intrinsics"], (3, 3))
+    if not (K[0, 0] > 0 and K[1, 1] > 0 and K[1, 0] == 0 and np.allclose(K[2], [0.0, 0.0, 1.0])):
+        raise ValueError(f"{path}: 'intrinsics' must be a pinhole matrix [[fx, s, cx], [0, fy, cy], [0, 0, 1]] "
+                         f"with fx, fy > 0 (pixels, OpenCV convention), got {K.tolist()}")
     if not isinstance(data["world_2_cam"], dict):
         raise ValueError(f"{path}: 'world_2_cam' must map camera serials to 4x4 matrices, "
                          f"got {type(data['world_2_cam']).__name__}")
@@ -109,6 +112,11 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
     cams = {}
     for serial, m in data["world_2_cam"].items():
         m = _finite_matrix(path, f"world_2_cam['{serial}']", m, (4, 4))
+        R = m[:3, :3]
+        if not (np.abs(R.T @ R - np.eye(3)).max() < 1e-4 and np.linalg.det(R) > 0
+                and np.allclose(m[3], [0.0, 0.0, 0.0, 1.0])):
+            raise ValueError(f"{path}: world_2_cam['{serial}'] must be a rigid transform (a rotation, a "
+                             "translation in metres, last row 0 0 0 1)")
         cams[str(serial)] = Camera(K, m, size[0], size[1])
     if not cams:
         raise ValueError(f"{path}: 'world_2_cam' lists no camera")

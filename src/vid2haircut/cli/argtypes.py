@@ -20,6 +20,17 @@ def nonneg_float(text: str) -> float:
     return v
 
 
+def unit_float(text: str) -> float:
+    """A number in [0, 1]."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text}")
+    return v
+
+
 def device(text: str) -> str:
     """A torch device this machine has: ``cpu``, or ``cuda`` / ``cuda:N`` where CUDA is available."""
     import torch

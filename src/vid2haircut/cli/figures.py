@@ -16,7 +16,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     t.add_argument("--strands", required=True, help="reconstructed strands (.npz, .data, .hair, .ply)")
     t.add_argument("--gt", default=None, help="ground-truth strands, drawn as a second row")
     t.add_argument("--head", default=None, help="fitted head.npz or head model name (default: the strands' own)")
-    t.add_argument("--size", type=int, default=256, help="side of one view, pixels")
+    t.add_argument("--size", type=argtypes.bounded_int(16, 4096), default=256, help="side of one view, pixels")
     t.add_argument("--max-strands", type=argtypes.nonneg_int, default=20000, help="thin larger strand sets to this many")
     t.add_argument("--seed", type=argtypes.nonneg_int, default=0, help="seed of the thinning and colour jitter")
     t.add_argument("--out", required=True, type=argtypes.image_path, help="output PNG")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from vid2haircut.cli import argtypes
 from vid2haircut.cli.keyframes import add_sequence_args
 
 
@@ -20,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--use-tracking", action="store_true",
                    help="take the poses from tracking/head_tracking.npz instead of fitting them")
     p.add_argument("--fit-scale", action="store_true", help="also fit the overall head scale (ill-posed)")
-    p.add_argument("--min-frames", type=int, default=1, help="fail when fewer keyframes have a face")
+    p.add_argument("--min-frames", type=argtypes.bounded_int(1), default=1, help="fail when fewer keyframes have a face")
     p.set_defaults(func=run)
 
 

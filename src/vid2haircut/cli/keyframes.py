@@ -20,16 +20,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser("keyframes", help="select keyframes -> keyframes.json + contact sheet",
                               description=__doc__)
     add_sequence_args(p)
-    p.add_argument("--num-keyframes", type=int, default=6, help="number of keyframes M (>= 1)")
+    p.add_argument("--num-keyframes", type=argtypes.bounded_int(1), default=6, help="number of keyframes M (>= 1)")
     p.add_argument("--head-model", default="proxy-v1", help="head model name or FLAME .pkl path")
     p.add_argument("--landmark-embedding", default=None,
                    help="FLAME landmark embedding (.npz/.pkl with lmk_face_idx, lmk_b_coords)")
     p.add_argument("--landmarks", default="auto", choices=["auto", "file", "detect"],
                    help="landmark source: the sequence's landmark file, MediaPipe detection, or auto")
-    p.add_argument("--blur-ratio", type=float, default=0.35,
-                   help="reject frames sharper than this fraction of the median sharpness")
-    p.add_argument("--max-candidates", type=int, default=300, help="frames scored at most (evenly spaced)")
-    p.add_argument("--still-frames", type=int, default=3,
+    p.add_argument("--blur-ratio", type=argtypes.unit_float, default=0.35,
+                   help="reject frames less sharp than this fraction of the median sharpness (0..1)")
+    p.add_argument("--max-candidates", type=argtypes.bounded_int(1), default=300,
+                   help="frames scored at most (evenly spaced)")
+    p.add_argument("--still-frames", type=argtypes.nonneg_int, default=3,
                    help="the reference is the frontal frame whose head moved least over this many preceding "
                         "frames (hair lags the head); 0 = simply the most frontal frame")
     p.add_argument("--frontal-tolerance", type=argtypes.nonneg_float, default=3.0,
