@@ -115,3 +115,111 @@ def test_stage_times_reads_the_benchmark_files(workflow_run):
     fit = sum(r["s"] for rule, _, r in rows if rule in ("stage1", "stage2"))
     assert f"stage1 + stage2 wall time: {fit:.1f} s" in text
     assert "| stage2 | synth_t000/HAIR/full |" in text
+
+
+def _base_config(root) -> dict:
+    import yaml
+
+    cfg = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    cfg["dataset_root"] = str(root)
+    return cfg
+
+
+def test_check_config_names_the_key(tmp_path):
+    """What the schema cannot say is refused when the config is read, naming the key (a job's
+    outputs are deleted when it starts, so a value only the command refuses would cost them)."""
+    from vid2haircut.workflow_support import check_config
+
+    check_config(_base_config(tmp_path))
+    cases = [
+        (("fit", "stage1"), {"iteration": 100}, r"fit\.stage1: settings: unknown key 'iteration'"),
+        (("fit", "stage2"), {"lr_z": -1}, r"fit\.stage2: settings: 'lr_z' must be in"),
+        (("variants",), {"full": {}, "mine": {"weights": {"depth": float("nan")}}}, r"variants\.mine\.weights\.depth: not a finite"),
+        (("variants",), {"full": {}, "k10": {"n_keyframes": 10}}, r"variants\.k10 \(over fit\.stage2\): n_keyframes 10 is more"),
+        (("variants",), {"full": False}, "every variant is set to false"),
+        (("device",), "gpu", "config: device: "),
+        (("synth", "sequences"), [{"subject": "a", "seq": "b", "family": "wavvy", "seed": 1}], "unknown family 'wavvy'"),
+        (("head", "model"), str(tmp_path / "missing.pkl"), "head.model: .*missing.pkl: neither a built-in head"),
+        (("sequences",), [], r"sequences: \[\] lists no sequence"),
+    ]
+    for keys, value, message in cases:
+        cfg = _base_config(tmp_path)
+        node = cfg
+        for k in keys[:-1]:
+            node = node[k]
+        node[keys[-1]] = value
+        with pytest.raises(ValueError, match=message):
+            check_config(cfg)
+    pkl = tmp_path / "flame.pkl"
+    pkl.write_bytes(b"x")
+    cfg = _base_config(tmp_path)
+    cfg["head"]["model"] = str(pkl)
+    with pytest.raises(ValueError, match="set head.landmark_embedding"):
+        check_config(cfg)
+    cfg = _base_config(tmp_path / "afile")
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(ValueError, match="dataset_root: .*afile is a file"):
+        check_config(cfg)
+    real = tmp_path / "synth_0000" / "sequences" / "HAIR"
+    (real / "images").mkdir(parents=True)
+    with pytest.raises(ValueError, match="synth.sequences names synth_0000/HAIR, but .* did not write"):
+        check_config(_base_config(tmp_path))
+
+
+def test_variant_settings_merge_key_by_key():
+    from vid2haircut.workflow_support import active_variants, variant_settings
+
+    merged = variant_settings({"switches": {"use_smoothness": False}, "weights.depth": 0.5},
+                              {"switches": {"use_deformation": False}})
+    assert merged == {"switches.use_smoothness": False, "switches.use_deformation": False, "weights.depth": 0.5}
+    assert active_variants({"full": False, "mine": None, "b": {"x": 1}}) == {"mine": {}, "b": {"x": 1}}
+
+
+def test_dry_run_quotes_paths_and_leaves_real_sequences_alone(tmp_path):
+    """A dataset folder with a space, a subject with regex characters, a real sequence with ground
+    truth but no synthesiser record: every path quoted in the commands, no synthesize job."""
+    import yaml
+
+    from vid2haircut.camera import intrinsics_from_fov, look_at, Camera, save_cameras
+    from vid2haircut.io.atomic import write_image
+    from vid2haircut.io.sequence import frame_path
+    from vid2haircut.io.strand_formats import save_strands
+    from vid2haircut.strands import StrandSet
+
+    root = tmp_path / "user data"
+    seq = root / "subj(1)" / "sequences" / "S1"
+    cam = Camera(intrinsics_from_fov(64, 64, 30.0), look_at(np.array([0.0, 0.0, 0.7]), np.zeros(3)), 64, 64)
+    save_cameras(root / "subj(1)" / "calibration" / "camera_params.json", {"c1": cam})
+    write_image(frame_path(seq, "images", "c1", 0, "png"), np.zeros((64, 64, 3), np.uint8))
+    save_strands(seq / "ground_truth" / "strands.npz", StrandSet(np.ones((2, 4, 3), np.float32)))
+    cfg = _base_config(root)
+    cfg["synth"]["sequences"] = []
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    cmd = [sys.executable, "-m", "snakemake", "-n", "-p", "--cores", "1", "-s", str(REPO / "workflow" / "Snakefile"),
+           "--configfile", str(tmp_path / "c.yaml"), "--directory", str(tmp_path / "work")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-3000:]
+    assert f"--root '{root}' --subject 'subj(1)' --seq S1" in out
+    assert "rule synthesize" not in out and "rule evaluate" in out
+
+
+def test_schema_refuses_unknown_top_level_keys(tmp_path):
+    from snakemake.utils import validate
+
+    schema = str(REPO / "workflow" / "schemas" / "config.schema.yaml")
+    cfg = _base_config(tmp_path)
+    cfg["camera"] = 220700191  # NeRSemble serials are numbers: read as their digits
+    validate(cfg, schema)
+    cfg["datset_root"] = "typo"
+    with pytest.raises(Exception, match="datset_root"):
+        validate(cfg, schema)
+
+
+def test_synth_note_when_the_demo_joins_own_sequences(tmp_path):
+    from vid2haircut.workflow_support import synth_note
+
+    assert synth_note(tmp_path, {("synth_0000", "HAIR")}) is None
+    (tmp_path / "mine" / "sequences" / "A" / "images").mkdir(parents=True)
+    assert "synthesising synth_0000/HAIR into" in synth_note(tmp_path, {("synth_0000", "HAIR")})
+    assert synth_note(tmp_path, set()) is None

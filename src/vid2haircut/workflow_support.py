@@ -1,8 +1,20 @@
-"""Logic behind `workflow/rules/common.smk`: sequence discovery and selection (testable without Snakemake)."""
+"""Logic behind `workflow/rules/common.smk`: config checks, sequence discovery and selection
+(testable without Snakemake).
+
+Snakemake deletes a job's old outputs before it runs the job's command, so a bad value that only
+the command would notice costs the previous results of that job. :func:`check_config` therefore
+checks, when the config is read, everything the commands would refuse later: the fitting
+settings of Stage 1 and of every Stage 2 variant, the device, the synthetic families, the head
+model files, non-finite numbers, the dataset folder.
+"""
 
 from __future__ import annotations
 
+import logging
+import math
 from pathlib import Path
+
+log = logging.getLogger(__name__)
 
 
 def discover_sequences(dataset_root: str | Path) -> set[tuple[str, str]]:
@@ -45,3 +57,125 @@ def select_sequences(dataset_root: str | Path, synthetic: set[tuple[str, str]],
 def bundled_prior_dir() -> Path:
     """Folder of the prior committed with the package (codec.npz, prior.pt, prior.json)."""
     return Path(__file__).resolve().parent / "data" / "prior" / "default"
+
+
+def flatten_settings(settings: dict | None, prefix: str = "") -> dict:
+    """Nested ``{"weights": {"depth": 0.1}}`` and dotted ``{"weights.depth": 0.1}`` settings as one
+    dotted dict (so that merging two keeps the sibling keys of a nested section)."""
+    out = {}
+    for key, value in (settings or {}).items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flatten_settings(value, name + "."))
+        else:
+            out[name] = value
+    return out
+
+
+def variant_settings(stage2: dict | None, variant: dict | None) -> dict:
+    """Stage 2 settings of a variant: the config's ``fit.stage2`` with the variant's overrides on top,
+    merged key by key (a variant's ``switches.use_deformation`` keeps ``fit.stage2``'s
+    ``switches.use_smoothness``)."""
+    return {**flatten_settings(stage2), **flatten_settings(variant)}
+
+
+def active_variants(variants: dict) -> dict:
+    """The config's variants without those set to ``false`` (a way to drop the default ``full``
+    from a config file merged over ``config/config.yaml``)."""
+    return {k: (v or {}) for k, v in variants.items() if v is not False}
+
+
+def _non_finite(obj, path: str = "") -> list[str]:
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return [path or "(top)"]
+    if isinstance(obj, dict):
+        return [p for k, v in obj.items() for p in _non_finite(v, f"{path}.{k}" if path else str(k))]
+    if isinstance(obj, list):
+        return [p for i, v in enumerate(obj) for p in _non_finite(v, f"{path}[{i}]")]
+    return []
+
+
+def check_config(config: dict) -> None:
+    """Check a validated workflow config for what its schema cannot express.
+
+    Raises:
+        ValueError naming the config key and what is wrong.
+    """
+    import argparse
+
+    from vid2haircut.cli.argtypes import device
+    from vid2haircut.fit.pipeline import stage1_config, stage2_config
+    from vid2haircut.head import HEAD_NAMES
+    from vid2haircut.synth.hairstyles import FAMILIES
+
+    bad = _non_finite(config)
+    if bad:
+        raise ValueError(f"config: {', '.join(bad)}: not a finite number")
+    try:
+        device(str(config.get("device", "cpu")))
+    except argparse.ArgumentTypeError as e:
+        raise ValueError(f"config: device: {e}") from None
+    fit = config.get("fit", {})
+    try:
+        stage1_config(fit.get("stage1"))
+    except ValueError as e:
+        raise ValueError(f"config: fit.stage1: {e}") from None
+    variants = active_variants(config.get("variants", {"full": {}}))
+    if not variants:
+        raise ValueError("config: variants: every variant is set to false; at least one Stage 2 variant must run")
+    n_keyframes = config.get("keyframes", {}).get("n_keyframes", 6)
+    for name, overrides in variants.items():
+        where = "fit.stage2" if not overrides else f"variants.{name} (over fit.stage2)"
+        merged = variant_settings(fit.get("stage2"), overrides)
+        try:
+            cfg = stage2_config(merged)
+        except ValueError as e:
+            raise ValueError(f"config: {where}: {e}") from None
+        if "n_keyframes" in merged and cfg.n_keyframes > n_keyframes:  # (the default: every keyframe there is)
+            raise ValueError(f"config: {where}: n_keyframes {cfg.n_keyframes} is more than the "
+                             f"{n_keyframes} keyframes chosen (keyframes.n_keyframes)")
+    for i, entry in enumerate(config.get("synth", {}).get("sequences", [])):
+        if entry["family"] not in FAMILIES:
+            raise ValueError(f"config: synth.sequences[{i}]: unknown family {entry['family']!r} "
+                             f"(one of {', '.join(FAMILIES)})")
+    head = config.get("head", {})
+    model = str(head.get("model", "proxy-v1"))
+    emb = head.get("landmark_embedding")
+    if model in HEAD_NAMES:
+        if emb:
+            raise ValueError(f"config: head.landmark_embedding is for a FLAME model; the built-in head {model!r} "
+                             "has its own landmarks")
+    else:
+        if not Path(model).is_file():
+            raise ValueError(f"config: head.model: {model}: neither a built-in head ({', '.join(HEAD_NAMES)}) "
+                             "nor an existing FLAME .pkl file")
+        if not emb:
+            raise ValueError(f"config: head.model is a FLAME model ({model}): set head.landmark_embedding to its "
+                             "landmark embedding file (.npz / .pkl with lmk_face_idx, lmk_b_coords)")
+        if not Path(emb).is_file():
+            raise ValueError(f"config: head.landmark_embedding: {emb}: file not found")
+    root = Path(config["dataset_root"])
+    if root.exists() and not root.is_dir():
+        raise ValueError(f"config: dataset_root: {root} is a file, not a folder")
+    synth = config.get("synth", {}).get("sequences", [])
+    if not root.exists() and not synth:
+        raise ValueError(f"config: dataset_root: {root}: no such folder (and synth.sequences is empty)")
+    for entry in synth:
+        seq = root / entry["subject"] / "sequences" / entry["seq"]
+        if seq.is_dir() and any(seq.iterdir()) and not (seq / "ground_truth" / "meta.json").is_file():
+            raise ValueError(f"config: synth.sequences names {entry['subject']}/{entry['seq']}, but {seq} holds a "
+                             "sequence the synthesiser did not write (no ground_truth/meta.json); it would be "
+                             "replaced. Remove the entry, or the folder")
+    if config.get("sequences") == []:
+        raise ValueError("config: sequences: [] lists no sequence; leave it out (or null) to run every sequence found")
+
+
+def synth_note(dataset_root: str | Path, synthetic: set[tuple[str, str]]) -> str | None:
+    """A note when demo sequences will be synthesised next to a user's own sequences (a config file
+    that sets ``dataset_root`` keeps ``config/config.yaml``'s ``synth.sequences``), else None."""
+    own = discover_sequences(dataset_root) - set(synthetic)
+    if own and synthetic:
+        names = ", ".join(f"{a}/{b}" for a, b in sorted(synthetic))
+        return (f"synthesising {names} into {dataset_root} beside its own sequences (synth.sequences); "
+                "set `synth: {sequences: []}` to run only yours")
+    return None

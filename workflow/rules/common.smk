@@ -1,40 +1,56 @@
 # Shared set-up: config validation, sequence discovery, wildcard constraints, target lists.
 import json
+import re
 import shlex
 import sys
 from pathlib import Path
 
 from snakemake.utils import validate
 
-from vid2haircut.workflow_support import bundled_prior_dir, select_sequences
+from vid2haircut import workflow_support as ws
 
 
 validate(config, schema="../schemas/config.schema.yaml")
+ws.check_config(config)  # what the schema cannot say, before any job (a job's old outputs go when it starts)
 
-# Rules call the installed package through the interpreter that runs Snakemake.
-CLI = f"{sys.executable} -m vid2haircut"
+# Rules call the installed package through the interpreter that runs Snakemake. Every path and
+# name that reaches a shell command is quoted (`{...:q}` in the rules, shlex.quote here).
+CLI = f"{shlex.quote(sys.executable)} -m vid2haircut"
 DATASET_ROOT = Path(config["dataset_root"])
 SYNTH = config.get("synth", {})
-CAMERA_ARG = f"--serial {config['camera']}" if config.get("camera") else ""
+CAMERA_ARG = f"--serial {shlex.quote(str(config['camera']))}" if config.get("camera") is not None else ""
+EMBEDDING = config["head"].get("landmark_embedding")
+EMBEDDING_ARG = f"--landmark-embedding {shlex.quote(str(EMBEDDING))}" if EMBEDDING else ""
 SYNTH_SEQUENCES = {(s["subject"], s["seq"]): s for s in SYNTH.get("sequences", [])}
-SEQUENCES = select_sequences(DATASET_ROOT, set(SYNTH_SEQUENCES), config.get("sequences"))
-VARIANTS = config["variants"]
+SEQUENCES = ws.select_sequences(DATASET_ROOT, set(SYNTH_SEQUENCES), config.get("sequences"))
+VARIANTS = ws.active_variants(config["variants"])
+if ws.synth_note(DATASET_ROOT, set(SYNTH_SEQUENCES)):
+    print(f"vid2haircut: note: {ws.synth_note(DATASET_ROOT, set(SYNTH_SEQUENCES))}", file=sys.stderr)
 if config["prior"]["source"] == "bundled":
-    PRIOR_FILES = [str(bundled_prior_dir() / n) for n in ("prior.pt", "codec.npz", "prior.json")]
+    PRIOR_FILES = [str(ws.bundled_prior_dir() / n) for n in ("prior.pt", "codec.npz", "prior.json")]
 else:
     PRIOR_FILES = [f"resources/prior/{config['prior']['setting']}/{n}" for n in ("prior.pt", "codec.npz", "prior.json")]
 SUBJECTS = sorted({s for s, _ in SEQUENCES}) or ["none"]
 SEQ_NAMES = sorted({q for _, q in SEQUENCES}) or ["none"]
 
 
+def alternatives(names):
+    """A wildcard pattern matching exactly ``names`` (regex characters in folder names escaped)."""
+    return "|".join(re.escape(n) for n in names) or "(?!)"
+
+
 wildcard_constraints:
-    subject="|".join(SUBJECTS),
-    seq="|".join(SEQ_NAMES),
-    variant="|".join(VARIANTS) or "none",
+    subject=alternatives(SUBJECTS),
+    seq=alternatives(SEQ_NAMES),
+    variant=alternatives(VARIANTS),
 
 
 def synth_record(wildcards):
-    return SYNTH_SEQUENCES[(wildcards.subject, wildcards.seq)]
+    key = (wildcards.subject, wildcards.seq)
+    if key not in SYNTH_SEQUENCES:
+        raise ValueError(f"{sequence_dir(wildcards)}: not in synth.sequences, the synthesize rule does not make it "
+                         "(a sequence of your own needs ground_truth/strands.npz and its images in place)")
+    return SYNTH_SEQUENCES[key]
 
 
 def sequence_dir(wildcards):
@@ -56,7 +72,7 @@ def shell_json(obj):
 
 def variant_settings(variant):
     """Stage-2 settings of an ablation variant: the config's stage2 settings plus its overrides."""
-    return {**config["fit"]["stage2"], **(VARIANTS[variant] or {})}
+    return ws.variant_settings(config["fit"]["stage2"], VARIANTS[variant])
 
 
 def gt_path(subject, seq):
@@ -73,7 +89,7 @@ def ground_truth_strands(wildcards):
 
 def gt_arg(wildcards):
     if has_ground_truth(wildcards.subject, wildcards.seq):
-        return f"--gt {gt_path(wildcards.subject, wildcards.seq)}"
+        return f"--gt {shlex.quote(str(gt_path(wildcards.subject, wildcards.seq)))}"
     return ""
 
 
@@ -102,7 +118,7 @@ def evaluation_targets():
 
 def no_ground_truth_args():
     labels = [f"{s}/{q}/{st}/{v}" for s, q, st, v in _runs() if not has_ground_truth(s, q)]
-    return " ".join(f"--no-gt {lab}" for lab in labels)
+    return " ".join(f"--no-gt {shlex.quote(lab)}" for lab in labels)
 
 
 def expand_sequences(pattern):

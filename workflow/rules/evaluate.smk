@@ -20,8 +20,8 @@ rule evaluate:
     benchmark:
         "benchmarks/rules/evaluate/{subject}/{seq}/{stage}/{variant}.tsv"
     shell:
-        "{params.cli} evaluate --pred {input.strands} --gt {input.gt} --out {output.metrics}"
-        " --n-points {params.n_points} --max-points {params.max_points} --seed {params.seed} > {log} 2>&1"
+        "{params.cli} evaluate --pred {input.strands:q} --gt {input.gt:q} --out {output.metrics:q}"
+        " --n-points {params.n_points} --max-points {params.max_points} --seed {params.seed} > {log:q} 2>&1"
 
 
 rule aggregate:
@@ -42,8 +42,8 @@ rule aggregate:
     benchmark:
         "benchmarks/rules/aggregate/summary.tsv"
     shell:
-        "{params.cli} aggregate --inputs {input.metrics} {params.no_gt}"
-        " --out-csv {output.csv} --out-md {output.md} > {log} 2>&1"
+        "{params.cli} aggregate --inputs {input.metrics:q} {params.no_gt}"
+        " --out-csv {output.csv:q} --out-md {output.md:q} > {log:q} 2>&1"
 
 
 rule turntable:
@@ -66,8 +66,8 @@ rule turntable:
     benchmark:
         "benchmarks/rules/turntable/{subject}/{seq}/{variant}.tsv"
     shell:
-        "{params.cli} figures turntable --strands {input.strands} {params.gt} --head {input.head}"
-        " --out {output.png} > {log} 2>&1"
+        "{params.cli} figures turntable --strands {input.strands:q} {params.gt} --head {input.head:q}"
+        " --out {output.png:q} > {log:q} 2>&1"
 
 
 rule coverage:
@@ -90,5 +90,5 @@ rule coverage:
     benchmark:
         "benchmarks/rules/coverage/{subject}/{seq}.tsv"
     shell:
-        "{params.cli} figures coverage --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
-        " --keyframes {input.keyframes} --head {input.head} --out {output.png} > {log} 2>&1"
+        "{params.cli} figures coverage --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
+        " --keyframes {input.keyframes:q} --head {input.head:q} --out {output.png:q} > {log:q} 2>&1"

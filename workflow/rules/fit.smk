@@ -40,10 +40,10 @@ rule stage1:
         "benchmarks/rules/stage1/{subject}/{seq}.tsv"
     threads: 2
     shell:
-        "{params.cli} stage1 --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
-        " {params.camera} --out {params.out_dir} --keyframes {input.keyframes} --head {input.head}"
-        " --targets {input.targets} --prior-dir {params.prior_dir} --settings {params.settings}"
-        " --device {params.device} --seed {params.seed} --no-progress > {log} 2>&1"
+        "{params.cli} stage1 --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
+        " {params.camera} --out {params.out_dir:q} --keyframes {input.keyframes:q} --head {input.head:q}"
+        " --targets {input.targets:q} --prior-dir {params.prior_dir:q} --settings {params.settings}"
+        " --device {params.device} --seed {params.seed} --no-progress > {log:q} 2>&1"
 
 
 rule stage2:
@@ -84,7 +84,7 @@ rule stage2:
         "benchmarks/rules/stage2/{subject}/{seq}/{variant}.tsv"
     threads: 2
     shell:
-        "{params.cli} stage2 --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
-        " {params.camera} --out {params.out_dir} --keyframes {input.keyframes} --head {input.head}"
-        " --targets {input.targets} --stage1-dir {params.stage1_dir} --settings {params.settings}"
-        " --device {params.device} --seed {params.seed} --no-progress > {log} 2>&1"
+        "{params.cli} stage2 --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
+        " {params.camera} --out {params.out_dir:q} --keyframes {input.keyframes:q} --head {input.head:q}"
+        " --targets {input.targets:q} --stage1-dir {params.stage1_dir:q} --settings {params.settings}"
+        " --device {params.device} --seed {params.seed} --no-progress > {log:q} 2>&1"

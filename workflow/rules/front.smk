@@ -22,15 +22,16 @@ rule keyframes:
         still=config["keyframes"]["still_frames"],
         tolerance=config["keyframes"]["frontal_tolerance_deg"],
         head_model=config["head"]["model"],
+        embedding=EMBEDDING_ARG,
     log:
         "logs/keyframes/{subject}/{seq}.log",
     benchmark:
         "benchmarks/rules/keyframes/{subject}/{seq}.tsv"
     shell:
-        "{params.cli} keyframes --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
-        " {params.camera} --out {params.out_dir} --num-keyframes {params.n} --landmarks {params.landmarks}"
+        "{params.cli} keyframes --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
+        " {params.camera} --out {params.out_dir:q} --num-keyframes {params.n} --landmarks {params.landmarks}"
         " --still-frames {params.still} --frontal-tolerance {params.tolerance}"
-        " --head-model {params.head_model} > {log} 2>&1"
+        " --head-model {params.head_model:q} {params.embedding} > {log:q} 2>&1"
 
 
 rule fit_head:
@@ -53,14 +54,15 @@ rule fit_head:
         landmarks=config["keyframes"]["landmarks"],
         head_model=config["head"]["model"],
         tracking="--use-tracking" if config["head"]["use_tracking"] else "",
+        embedding=EMBEDDING_ARG,
     log:
         "logs/fit_head/{subject}/{seq}.log",
     benchmark:
         "benchmarks/rules/fit_head/{subject}/{seq}.tsv"
     shell:
-        "{params.cli} fit_head --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
-        " {params.camera} --out {params.out_dir} --keyframes {input.keyframes} --landmarks {params.landmarks}"
-        " --head-model {params.head_model} {params.tracking} > {log} 2>&1"
+        "{params.cli} fit_head --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
+        " {params.camera} --out {params.out_dir:q} --keyframes {input.keyframes:q} --landmarks {params.landmarks}"
+        " --head-model {params.head_model:q} {params.embedding} {params.tracking} > {log:q} 2>&1"
 
 
 rule targets:
@@ -87,6 +89,6 @@ rule targets:
     benchmark:
         "benchmarks/rules/targets/{subject}/{seq}.tsv"
     shell:
-        "{params.cli} targets --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
-        " {params.camera} --out {output.targets} --head {input.head} --mask-source {params.mask}"
-        " --depth-source {params.depth} --device {params.device} > {log} 2>&1"
+        "{params.cli} targets --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
+        " {params.camera} --out {output.targets:q} --head {input.head:q} --mask-source {params.mask}"
+        " --depth-source {params.depth} --device {params.device} > {log:q} 2>&1"

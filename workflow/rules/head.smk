@@ -12,4 +12,4 @@ rule head_export:
     benchmark:
         "benchmarks/rules/head_export/proxy-v1.tsv"
     shell:
-        "{params.cli} head export {params.out_dir} > {log} 2>&1"
+        "{params.cli} head export {params.out_dir:q} > {log:q} 2>&1"

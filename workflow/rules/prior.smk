@@ -14,12 +14,12 @@ rule train_prior:
         seed=config["seed"],
         device=config["device"],
     wildcard_constraints:
-        setting="default|tiny",
+        setting="default|tiny|render|render_large",
     log:
         "logs/train_prior/{setting}.log",
     benchmark:
         "benchmarks/rules/train_prior/{setting}.tsv"
     threads: 2
     shell:
-        "{params.cli} train_prior --out-dir {params.out_dir} --setting {wildcards.setting}"
-        " --seed {params.seed} --device {params.device} --threads {threads} > {log} 2>&1"
+        "{params.cli} train_prior --out-dir {params.out_dir:q} --setting {wildcards.setting:q}"
+        " --seed {params.seed} --device {params.device} --threads {threads} > {log:q} 2>&1"

@@ -18,13 +18,16 @@ rule synthesize:
         yaw=SYNTH.get("yaw_max_deg", 60),
         sway=SYNTH.get("sway_max_m", 0.015),
         sway_gain=SYNTH.get("sway_gain", 0.012),
+    wildcard_constraints:  # only the synth.sequences pairs: never a sequence of the user's own
+        subject=alternatives(sorted({s for s, _ in SYNTH_SEQUENCES})),
+        seq=alternatives(sorted({q for _, q in SYNTH_SEQUENCES})),
     log:
         "logs/synthesize/{subject}/{seq}.log",
     benchmark:
         "benchmarks/rules/synthesize/{subject}/{seq}.tsv"
     threads: 2
     shell:
-        "{params.cli} synthesize --root {params.root} --subject {wildcards.subject} --seq {wildcards.seq}"
+        "{params.cli} synthesize --root {params.root:q} --subject {wildcards.subject:q} --seq {wildcards.seq:q}"
         " --family {params.family} --seed {params.seed} --frames {params.frames} --size {params.size}"
         " --strands {params.strands} --points {params.points} --landmark-noise {params.noise}"
-        " --yaw-max {params.yaw} --sway-max {params.sway} --sway-gain {params.sway_gain} --overwrite > {log} 2>&1"
+        " --yaw-max {params.yaw} --sway-max {params.sway} --sway-gain {params.sway_gain} --overwrite > {log:q} 2>&1"
