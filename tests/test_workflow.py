@@ -98,8 +98,10 @@ def test_select_sequences(tmp_path):
     (tmp_path / "s1/sequences/B").mkdir(parents=True)  # no images/: not a sequence
     assert select_sequences(tmp_path, {("syn", "X")}, None) == [("s1", "A"), ("syn", "X")]
     assert select_sequences(tmp_path, set(), ["s1/A"]) == [("s1", "A")]
-    with pytest.raises(ValueError, match="s1/B"):
+    with pytest.raises(ValueError, match="s1/B, but .*B has no images/"):
         select_sequences(tmp_path, set(), ["s1/B"])
+    with pytest.raises(ValueError, match=r"\['s1/C'\], found neither"):
+        select_sequences(tmp_path, set(), ["s1/C"])
     with pytest.raises(ValueError, match="subject/SEQ"):
         select_sequences(tmp_path, set(), ["nosl"])
 

@@ -47,6 +47,11 @@ def select_sequences(dataset_root: str | Path, synthetic: set[tuple[str, str]],
         if not sep or not subject or not seq:
             raise ValueError(f"config 'sequences': '{item}' is not of the form subject/SEQ")
         chosen.append((subject, seq))
+    for a, b in chosen:
+        folder = Path(dataset_root) / a / "sequences" / b
+        if (a, b) not in known and folder.is_dir():
+            raise ValueError(f"config 'sequences' names {a}/{b}, but {folder} has no images/ (a sequence needs "
+                             "images/cam_<serial>.mp4 or images/cam_<serial>/frame_<t>.jpg|png)")
     missing = [f"{a}/{b}" for a, b in chosen if (a, b) not in known]
     if missing:
         raise ValueError(f"config 'sequences' names {missing}, found neither under {dataset_root} "
