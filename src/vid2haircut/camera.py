@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from vid2haircut.io.checks import rigid
+
 
 @dataclass(frozen=True)
 class Camera:
@@ -112,9 +114,7 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
     cams = {}
     for serial, m in data["world_2_cam"].items():
         m = _finite_matrix(path, f"world_2_cam['{serial}']", m, (4, 4))
-        R = m[:3, :3]
-        if not (np.abs(R.T @ R - np.eye(3)).max() < 1e-4 and np.linalg.det(R) > 0
-                and np.allclose(m[3], [0.0, 0.0, 0.0, 1.0])):
+        if not rigid(m):
             raise ValueError(f"{path}: world_2_cam['{serial}'] must be a rigid transform (a rotation, a "
                              "translation in metres, last row 0 0 0 1)")
         cams[str(serial)] = Camera(K, m, size[0], size[1])

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vid2haircut.front.pose import SHAPE_NAMES, HeadFit
-from vid2haircut.io.checks import float_array, frame_numbers
+from vid2haircut.io.checks import float_array, frame_numbers, rigid
 
 
 def resolve_head(spec: str, shape: np.ndarray | None = None, landmark_embedding: str | None = None):
@@ -106,11 +106,9 @@ def load_head_fit(path: str | Path) -> tuple[HeadFit, dict]:
     if m == 0:
         raise ValueError(f"{path}: no frames (the head fit kept no keyframe)")
     poses = float_array(d["world_from_head"], path, "world_from_head", (m, 4, 4))
-    rot = poses[:, :3, :3]
-    rigid = (np.abs(rot.transpose(0, 2, 1) @ rot - np.eye(3)).max(axis=(1, 2)) < 1e-4) & (np.linalg.det(rot) > 0)
-    rigid &= (np.abs(poses[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) < 1e-9)
-    if not rigid.all():
-        raise ValueError(f"{path}: world_from_head of frames {frames[~rigid][:5].tolist()} is not a rigid "
+    ok = rigid(poses)
+    if not ok.all():
+        raise ValueError(f"{path}: world_from_head of frames {frames[~ok][:5].tolist()} is not a rigid "
                          "transform (rotation and translation, last row 0 0 0 1)")
     shape = d["shape"]
     if shape.shape != (3,) or shape.dtype.kind not in "fiu" or not (np.isfinite(shape).all() and (shape > 0).all()):

@@ -52,3 +52,11 @@ def float_array(values, path: str | Path, key: str, shape: tuple | None = None, 
     if finite and a.dtype.kind == "f" and not np.isfinite(a).all():
         raise ValueError(f"{path}: '{key}' has non-finite entries")
     return a.astype(dtype)
+
+
+def rigid(poses: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+    """Which of the (..., 4, 4) matrices ``poses`` are rigid transforms: an orthonormal rotation
+    (to ``tol``) with determinant +1, and a last row of 0 0 0 1. Returns a bool array of shape (...)."""
+    R = poses[..., :3, :3]
+    ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1)) < tol
+    return ortho & (np.linalg.det(R) > 0) & (np.abs(poses[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=-1) < 1e-9)
