@@ -225,3 +225,19 @@ def test_synth_note_when_the_demo_joins_own_sequences(tmp_path):
     (tmp_path / "mine" / "sequences" / "A" / "images").mkdir(parents=True)
     assert "synthesising synth_0000/HAIR into" in synth_note(tmp_path, {("synth_0000", "HAIR")})
     assert synth_note(tmp_path, set()) is None
+
+
+def test_schema_errors_are_one_line_each(tmp_path):
+    from vid2haircut.workflow_support import schema_errors
+
+    schema = REPO / "workflow" / "schemas" / "config.schema.yaml"
+    cfg = _base_config(tmp_path)
+    assert schema_errors(cfg, schema) == []
+    cfg["keyframes"]["n_keyframes"] = 0
+    cfg["seed"] = "1"
+    cfg["datset_root"] = "x"
+    errors = schema_errors(cfg, schema)
+    assert errors[0].startswith("(top level): Additional properties are not allowed ('datset_root'")
+    assert "keyframes.n_keyframes: 0 is less than the minimum of 1" in errors
+    assert "seed: '1' is not of type 'integer'" in errors
+    assert all("\n" not in e for e in errors)

@@ -100,6 +100,21 @@ def _non_finite(obj, path: str = "") -> list[str]:
     return []
 
 
+def schema_errors(config: dict, schema_path: str | Path) -> list[str]:
+    """The config's violations of the workflow's JSON schema, one short line each ("key.path: what"),
+    where Snakemake's own check prints the whole schema with the first one."""
+    import jsonschema
+    import yaml
+
+    schema = yaml.safe_load(Path(schema_path).read_text())
+    validator = jsonschema.Draft202012Validator(schema)
+    out = []
+    for e in sorted(validator.iter_errors(config), key=lambda e: list(map(str, e.absolute_path))):
+        where = ".".join(str(p) for p in e.absolute_path) or "(top level)"
+        out.append(f"{where}: {e.message}")
+    return out
+
+
 def check_config(config: dict) -> None:
     """Check a validated workflow config for what its schema cannot express.
 

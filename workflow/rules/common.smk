@@ -10,7 +10,10 @@ from snakemake.utils import validate
 from vid2haircut import workflow_support as ws
 
 
-validate(config, schema="../schemas/config.schema.yaml")
+_problems = ws.schema_errors(config, Path(workflow.basedir) / "schemas" / "config.schema.yaml")
+if _problems:
+    raise ValueError("config does not match workflow/schemas/config.schema.yaml:\n  " + "\n  ".join(_problems))
+validate(config, schema="../schemas/config.schema.yaml")  # (also fills the schema's defaults)
 ws.check_config(config)  # what the schema cannot say, before any job (a job's old outputs go when it starts)
 
 # Rules call the installed package through the interpreter that runs Snakemake. Every path and
