@@ -219,12 +219,16 @@ def test_schema_refuses_unknown_top_level_keys(tmp_path):
 
 
 def test_synth_note_when_the_demo_joins_own_sequences(tmp_path):
-    from vid2haircut.workflow_support import synth_note
+    from vid2haircut.workflow_support import skipped_note, synth_note
 
     assert synth_note(tmp_path, {("synth_0000", "HAIR")}) is None
     (tmp_path / "mine" / "sequences" / "A" / "images").mkdir(parents=True)
     assert "synthesising synth_0000/HAIR into" in synth_note(tmp_path, {("synth_0000", "HAIR")})
     assert synth_note(tmp_path, set()) is None
+    (tmp_path / "mine" / "sequences" / "B").mkdir()
+    (tmp_path / "synth_0000" / "sequences" / "HAIR").mkdir(parents=True)  # made by the synthesize rule later
+    assert skipped_note(tmp_path, {("synth_0000", "HAIR")}) == (
+        f"skipping {tmp_path / 'mine' / 'sequences' / 'B'}: no images/ folder (not a sequence)")
 
 
 def test_schema_errors_are_one_line_each(tmp_path):

@@ -190,6 +190,17 @@ def check_config(config: dict) -> None:
         raise ValueError("config: sequences: [] lists no sequence; leave it out (or null) to run every sequence found")
 
 
+def skipped_note(dataset_root: str | Path, synthetic: set[tuple[str, str]]) -> str | None:
+    """A note naming the folders under ``<root>/*/sequences/`` that are not run because they have no
+    ``images/`` (and are not synthesised), else None."""
+    skipped = sorted(str(p) for p in Path(dataset_root).glob("*/sequences/*")
+                     if p.is_dir() and not (p / "images").exists() and (p.parent.parent.name, p.name) not in synthetic)
+    if not skipped:
+        return None
+    more = f" and {len(skipped) - 5} more" if len(skipped) > 5 else ""
+    return f"skipping {', '.join(skipped[:5])}{more}: no images/ folder (not a sequence)"
+
+
 def synth_note(dataset_root: str | Path, synthetic: set[tuple[str, str]]) -> str | None:
     """A note when demo sequences will be synthesised next to a user's own sequences (a config file
     that sets ``dataset_root`` keeps ``config/config.yaml``'s ``synth.sequences``), else None."""

@@ -27,8 +27,9 @@ EMBEDDING_ARG = f"--landmark-embedding {shlex.quote(str(EMBEDDING))}" if EMBEDDI
 SYNTH_SEQUENCES = {(s["subject"], s["seq"]): s for s in SYNTH.get("sequences", [])}
 SEQUENCES = ws.select_sequences(DATASET_ROOT, set(SYNTH_SEQUENCES), config.get("sequences"))
 VARIANTS = ws.active_variants(config["variants"])
-if ws.synth_note(DATASET_ROOT, set(SYNTH_SEQUENCES)):
-    print(f"vid2haircut: note: {ws.synth_note(DATASET_ROOT, set(SYNTH_SEQUENCES))}", file=sys.stderr)
+for _note in (ws.synth_note(DATASET_ROOT, set(SYNTH_SEQUENCES)), ws.skipped_note(DATASET_ROOT, set(SYNTH_SEQUENCES))):
+    if _note:
+        print(f"vid2haircut: note: {_note}", file=sys.stderr)
 if config["prior"]["source"] == "bundled":
     PRIOR_FILES = [str(ws.bundled_prior_dir() / n) for n in ("prior.pt", "codec.npz", "prior.json")]
 else:
