@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import sys
 from pathlib import Path
 
@@ -352,3 +353,41 @@ def test_angle_is_read_from_direction_and_zero_where_empty():
     assert torch.allclose(got[:5], a, atol=1e-5)
     assert bool((got >= 0).all() and (got < math.pi).all())
     assert got[5:].tolist() == [0.0, 0.0, 0.0]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_bad_arguments_are_refused_before_any_kernel(backend):
+    """Arguments a kernel would misread are refused up front: one depth bin (the numba kernels had
+    written out of bounds: a crash), sizes that are not whole numbers or too large (tile counts
+    overflow), half-precision points (covariances overflow to a blank image), non-finite or
+    impossible cameras, widths and depth maps (blank or mirrored images)."""
+    pts = torch.tensor([[[[-0.02, 0.0, 0.5], [0.0, 0.0, 0.5], [0.02, 0.0, 0.5]]]], dtype=DT)
+    K = torch.tensor([[[400.0, 0, 31.5], [0, 400.0, 31.5], [0, 0, 1]]], dtype=DT)
+    E = torch.eye(4, dtype=DT)[None]
+    cases = [
+        (dict(bins=1), ValueError, "2 <= bins <= 1024"),
+        (dict(bins=10**9), ValueError, "2 <= bins <= 1024"),
+        (dict(bins=2.5), TypeError, "bins must be a whole number"),
+        (dict(depth_bin=float("nan")), ValueError, "finite depth_bin > 0"),
+        (dict(width=64.0), TypeError, "width must be a whole number"),
+        (dict(width=2**36, height=2**36), ValueError, "at most 16384 a side"),
+        (dict(points=pts.half()), ValueError, "float32 or float64 tensor, got torch.float16"),
+        (dict(K=K * float("nan")), ValueError, "K and world_2_cam must be finite"),
+        (dict(K=K * 0.0), ValueError, "positive focal lengths"),
+        (dict(world_2_cam=E * float("inf")), ValueError, "must be finite"),
+        (dict(strand_width=-1e-3), ValueError, "strand_width, dilation and near >= 0"),
+        (dict(strand_width=float("nan")), ValueError, "strand_width, dilation and near >= 0"),
+        (dict(near=-1.0), ValueError, "strand_width, dilation and near >= 0"),
+        (dict(dilation=-0.2), ValueError, "strand_width, dilation and near >= 0"),
+        (dict(head_depth=torch.full((1, 64, 64), float("nan"), dtype=DT)), ValueError, "head_depth has NaN"),
+        (dict(head_depth=torch.ones((1, 64, 64), dtype=torch.bool)), ValueError, "head_depth must be a float"),
+    ]
+    for kw, error, message in cases:
+        args = dict(points=pts, K=K, world_2_cam=E, width=64, height=64, backend=backend)
+        args.update(kw)
+        with pytest.raises(error, match=re.escape(message)):
+            render_strands(**args)
+    # whole numbers of other types and a numpy head depth map are fine
+    out = render_strands(pts, K, E, np.int64(64), torch.tensor(64), backend=backend,
+                         head_depth=np.full((1, 64, 64), np.inf))
+    assert float(out.silhouette.sum()) > 1

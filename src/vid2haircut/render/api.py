@@ -31,6 +31,7 @@ Breakdown and history: README, Performance; benchmarks/RESULTS.md, "The renderer
 from __future__ import annotations
 
 import math
+import operator
 
 import torch
 from torch import Tensor
@@ -44,6 +45,12 @@ from vid2haircut.render.numba_backend import (channels_fused, composite_fused, g
                                               resolve_backend)
 from vid2haircut.render.raster import composite
 from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
+
+MAX_SIDE = 16384
+"""Largest image side :func:`render_strands` accepts (beyond it the tile and pixel counts of a
+batch outgrow the kernels' index types)."""
+MAX_BINS = 1024
+"""Most depth bins :func:`render_strands` accepts (the per-tile bin tables are bins x pixels)."""
 
 DEFAULT_ALPHA_MIN = math.exp(-4.5)
 """Contributions below this alpha are dropped (the ellipse is cut at 3 standard deviations)."""
@@ -116,24 +123,35 @@ def render_strands(
         >>> out.silhouette.shape, bool(out.mask[0, 31, 31]), round(float(out.angle[0, 31, 31]), 3)
         (torch.Size([1, 64, 64]), True, 0.0)
     """
-    if width <= 0 or height <= 0:
-        raise ValueError(f"image size must be positive, got {width} x {height}")
+    width, height, bins = _whole("width", width), _whole("height", height), _whole("bins", bins)
+    if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
+        raise ValueError(f"image size must be positive and at most {MAX_SIDE} a side, got {width} x {height}")
     if not 0.0 < opacity <= 1.0 or not 0.0 < alpha_min < min(opacity, alpha_max) or not alpha_max < 1.0:
         raise ValueError(f"need 0 < alpha_min < min(opacity, alpha_max) and alpha_max < 1, got "
                          f"alpha_min={alpha_min}, opacity={opacity}, alpha_max={alpha_max}")
-    if depth_bin <= 0 or bins < 1:
-        raise ValueError(f"need depth_bin > 0 and bins >= 1, got depth_bin={depth_bin}, bins={bins}")
+    if not (0.0 < depth_bin < math.inf and 2 <= bins <= MAX_BINS):
+        raise ValueError(f"need a finite depth_bin > 0 and 2 <= bins <= {MAX_BINS} (one bin has no depth order), "
+                         f"got depth_bin={depth_bin}, bins={bins}")
+    if not (0.0 <= strand_width < math.inf and 0.0 <= dilation < math.inf and 0.0 <= near < math.inf):
+        raise ValueError(f"need finite strand_width, dilation and near >= 0 (metres, pixels, metres), got "
+                         f"strand_width={strand_width}, dilation={dilation}, near={near}")
     if not vis_weight > 0.0:  # a weight of 0 would call every segment whose window touches the image visible
         raise ValueError(f"vis_weight must be > 0, got {vis_weight}")
     if silhouette_opacity is not None and not alpha_min < silhouette_opacity <= 1.0:
         raise ValueError(f"silhouette_opacity must be in (alpha_min, 1] = ({alpha_min}, 1], got {silhouette_opacity}")
+    points = torch.as_tensor(points)
     check_points(points)
     use_numba = resolve_backend(backend, points) == "numba"
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     if points.device.type == "cpu":
         tune_cpu_allocator()  # see vid2haircut.render.allocator
-    if head_depth is not None and head_depth.shape != (B, height, width):
-        raise ValueError(f"head_depth must have shape ({B}, {height}, {width}), got {tuple(head_depth.shape)}")
+    if head_depth is not None:
+        head_depth = torch.as_tensor(head_depth, device=points.device)
+        if head_depth.shape != (B, height, width) or not head_depth.is_floating_point():
+            raise ValueError(f"head_depth must be a float tensor of shape ({B}, {height}, {width}), got "
+                             f"{head_depth.dtype} {tuple(head_depth.shape)}")
+        if bool(torch.isnan(head_depth).any()):
+            raise ValueError("head_depth has NaN entries (use inf where there is no head)")
     K = torch.as_tensor(K, device=points.device)
     world_2_cam = torch.as_tensor(world_2_cam, device=points.device)
     check_cameras(K, world_2_cam, B)
@@ -177,6 +195,14 @@ def render_strands(
                                 alpha_max=alpha_max, near=near, shading=False, backend=backend)
         return out._replace(silhouette=second.silhouette)
     return out
+
+
+def _whole(name: str, value) -> int:
+    """``value`` as an int when it is a whole number (an int, a numpy integer, a 0-d integer tensor)."""
+    try:
+        return operator.index(value)
+    except TypeError:
+        raise TypeError(f"{name} must be a whole number (int), got {value!r}") from None
 
 
 def _finish(sums: PixelSums, visibility: Tensor, g, fused: bool = False) -> StrandRender:

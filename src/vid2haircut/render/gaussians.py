@@ -39,8 +39,9 @@ def check_points(points: Tensor) -> None:
         raise ValueError(f"points must have shape (B, N, P, 3), got {tuple(points.shape)}")
     if points.shape[2] < 2:
         raise ValueError(f"strands need at least 2 points each, got P = {points.shape[2]}")
-    if not points.is_floating_point():
-        raise ValueError(f"points must be a floating tensor, got {points.dtype}")
+    if points.dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"points must be a float32 or float64 tensor, got {points.dtype} (float16 / bfloat16 "
+                         "covariances overflow: convert with points.float())")
 
 
 def segment_gaussians(

@@ -282,6 +282,9 @@ def channels_fused(weight: Tensor, wz: Tensor, dirs: Tensor) -> tuple[Tensor, Te
         (depth [B, H, W], direction [B, H, W, 2], mask [B, H, W] bool), differentiable w.r.t. the
         three inputs but the mask.
     """
+    if wz.shape != weight.shape or dirs.shape != (*weight.shape, 2):  # the kernels index all three alike
+        raise ValueError(f"channels_fused: weight {tuple(weight.shape)}, wz {tuple(wz.shape)} and dirs "
+                         f"{tuple(dirs.shape)} must be [B, H, W], [B, H, W] and [B, H, W, 2]")
     return _FusedChannels.apply(weight, wz, dirs)
 
 

@@ -17,6 +17,11 @@ def check_cameras(K: Tensor, world_2_cam: Tensor, batch: int) -> None:
         raise ValueError(f"K must have shape ({batch}, 3, 3), got {tuple(K.shape)}")
     if world_2_cam.shape != (batch, 4, 4):
         raise ValueError(f"world_2_cam must have shape ({batch}, 4, 4), got {tuple(world_2_cam.shape)}")
+    if not (K.is_floating_point() and world_2_cam.is_floating_point()):
+        raise ValueError(f"K and world_2_cam must be float tensors, got {K.dtype} and {world_2_cam.dtype}")
+    ok = torch.isfinite(K).all() & torch.isfinite(world_2_cam).all() & (K[:, 0, 0] > 0).all() & (K[:, 1, 1] > 0).all()
+    if batch and not bool(ok):  # (one device sync per call: K and world_2_cam are a few numbers a frame)
+        raise ValueError("K and world_2_cam must be finite, with positive focal lengths K[:, 0, 0] and K[:, 1, 1]")
 
 
 def to_camera(points: Tensor, world_2_cam: Tensor) -> Tensor:
