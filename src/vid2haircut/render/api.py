@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 import operator
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -40,7 +41,7 @@ from vid2haircut.render.allocator import tune_cpu_allocator
 from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, check_points, segment_gaussians
 from vid2haircut.render.kernels import KernelConsts
-from vid2haircut.render.project import check_cameras
+from vid2haircut.render.project import NUMPY_FLOATS, check_cameras
 from vid2haircut.render.numba_backend import (channels_fused, composite_fused, gaussian_table, project_fused,
                                               resolve_backend)
 from vid2haircut.render.raster import composite
@@ -150,7 +151,9 @@ def render_strands(
         if head_depth.shape != (B, height, width) or not head_depth.is_floating_point():
             raise ValueError(f"head_depth must be a float tensor of shape ({B}, {height}, {width}), got "
                              f"{head_depth.dtype} {tuple(head_depth.shape)}")
-        if bool(torch.isnan(head_depth).any()):
+        hd = head_depth.detach()
+        if bool(np.isnan(hd.numpy()).any() if hd.device.type == "cpu" and hd.dtype in NUMPY_FLOATS
+                else torch.isnan(hd).any()):
             raise ValueError("head_depth has NaN entries (use inf where there is no head)")
     K = torch.as_tensor(K, device=points.device)
     world_2_cam = torch.as_tensor(world_2_cam, device=points.device)
