@@ -32,6 +32,24 @@ class Camera:
     width: int
     height: int
 
+    def __post_init__(self) -> None:
+        K = np.asarray(self.K, dtype=np.float64)
+        E = np.asarray(self.world_2_cam, dtype=np.float64)
+        if K.shape != (3, 3) or not np.isfinite(K).all() or not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise ValueError(f"Camera: K must be a finite 3x3 matrix with positive focal lengths, got {K.tolist()}")
+        if E.shape != (4, 4) or not np.isfinite(E).all():
+            raise ValueError(f"Camera: world_2_cam must be a finite 4x4 matrix, got shape {E.shape}")
+        size = []
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not float(v).is_integer() or v <= 0:
+                raise ValueError(f"Camera: {name} must be a positive whole number of pixels, got {v!r}")
+            size.append(int(v))
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "world_2_cam", E)
+        object.__setattr__(self, "width", size[0])
+        object.__setattr__(self, "height", size[1])
+
     @property
     def cam_2_world(self) -> np.ndarray:
         return np.linalg.inv(self.world_2_cam)
@@ -66,8 +84,13 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0,
     """World->camera (4, 4) for an OpenCV camera at ``eye`` looking at ``target`` (world y up)."""
     eye = np.asarray(eye, dtype=np.float64)
     fwd = np.asarray(target, dtype=np.float64) - eye
+    if not np.linalg.norm(fwd) > 0:
+        raise ValueError(f"look_at: eye and target are the same point {eye.tolist()}")
     fwd /= np.linalg.norm(fwd)
     right = np.cross(fwd, up)
+    if not np.linalg.norm(right) > 1e-9:
+        raise ValueError(f"look_at: the view direction {fwd.tolist()} is parallel to up {np.asarray(up).tolist()}; "
+                         "give another up vector")
     right /= np.linalg.norm(right)
     down = np.cross(fwd, right)
     rot = np.stack([right, down, fwd])  # rows: camera axes in world coordinates
@@ -79,6 +102,8 @@ def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0,
 
 def intrinsics_from_fov(width: int, height: int, fov_y_deg: float) -> np.ndarray:
     """(3, 3) intrinsics with square pixels and the principal point at the image centre."""
+    if not 0.0 < fov_y_deg < 180.0:
+        raise ValueError(f"intrinsics_from_fov: fov_y_deg must be in (0, 180), got {fov_y_deg}")
     f = 0.5 * height / np.tan(np.radians(fov_y_deg) / 2.0)
     return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 

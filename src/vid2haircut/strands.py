@@ -39,8 +39,8 @@ def resample_polylines(points: np.ndarray, n_points: int) -> np.ndarray:
         raise ValueError(f"resample_polylines: points must be (N,P,3), got {pts.shape}")
     if pts.shape[1] < 2:
         raise ValueError(f"resample_polylines: need at least 2 points per strand, got {pts.shape[1]}")
-    if int(n_points) < 2:
-        raise ValueError(f"resample_polylines: n_points must be >= 2, got {n_points}")
+    if isinstance(n_points, bool) or not float(n_points).is_integer() or int(n_points) < 2:
+        raise ValueError(f"resample_polylines: n_points must be a whole number >= 2, got {n_points!r}")
     n_points = int(n_points)
     out_dtype = pts.dtype if np.issubdtype(pts.dtype, np.floating) else np.float64
     n, p = pts.shape[:2]
@@ -215,6 +215,9 @@ def resample_polyline_list(polylines: Sequence[np.ndarray], n_points: int | None
     """
     if len(polylines) == 0:
         return np.zeros((0, int(n_points or 2), 3), np.float32)
+    for i, pl in enumerate(polylines):
+        if np.ndim(pl) != 2 or np.shape(pl)[1] != 3:
+            raise ValueError(f"resample_polyline_list: polyline {i} must be (P, 3), got shape {np.shape(pl)}")
     counts = np.array([len(pl) for pl in polylines])
     if counts.min() < 2:
         raise ValueError(f"resample_polyline_list: a polyline has {counts.min()} point(s), need >= 2")

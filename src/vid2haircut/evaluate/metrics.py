@@ -178,8 +178,15 @@ def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_po
         ``n_points_gt`` (points actually compared).
     """
     for name, s in (("pred", pred), ("gt", gt)):
+        if not isinstance(s, StrandSet):
+            raise TypeError(f"evaluate_strands: {name} must be a StrandSet (vid2haircut.strands), got "
+                            f"{type(s).__name__}; wrap (N, P, 3) points as StrandSet(points)")
         if s.n_strands == 0:
             raise ValueError(f"evaluate_strands: the {name} strand set is empty")
+    if max_points is not None and (isinstance(max_points, bool) or not float(max_points).is_integer()
+                                   or max_points < 0):
+        raise ValueError(f"evaluate_strands: max_points must be a whole number >= 0 (0 or None: every point), "
+                         f"got {max_points!r}")
     if pred.head_model and gt.head_model and pred.head_model != gt.head_model:
         raise ValueError(f"evaluate_strands: prediction is in the frame of head model {pred.head_model!r}, "
                          f"ground truth in {gt.head_model!r}")

@@ -85,6 +85,9 @@ def load_strands(path: str | os.PathLike, n_points: int | None = None) -> Strand
 def save_strands(path: str | os.PathLike, strands: StrandSet) -> Path:
     """Atomically write ``strands`` in the format given by the suffix of ``path``; returns the path."""
     path = Path(path)
+    if not isinstance(strands, StrandSet):
+        raise TypeError(f"{path}: save_strands needs a StrandSet (vid2haircut.strands), got {type(strands).__name__}; "
+                        "wrap (N, P, 3) points as StrandSet(points)")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         _write_npz(path, strands)
