@@ -399,3 +399,31 @@ def test_python_api_arguments_are_named():
             Camera(*args)
     cam = Camera(K.tolist(), E, 64.0, 64)
     assert isinstance(cam.K, np.ndarray) and cam.width == 64 and isinstance(cam.width, int)
+
+
+def test_codec_and_mesh_depth_arguments():
+    import torch
+
+    from vid2haircut.prior.codec import StrandCodec
+    from vid2haircut.render import mesh_depth
+
+    rng = np.random.default_rng(0)
+    strands = np.cumsum(rng.normal(size=(20, 5, 3)) * 0.01, axis=1)
+    with pytest.raises(ValueError, match="k must be a whole number in"):
+        StrandCodec.fit(strands, k=3.5)
+    codec = StrandCodec.fit(strands, k=4)
+    with pytest.raises(ValueError, match="k must be a whole number in"):
+        codec.truncate(2.5)
+    half = codec.encode(torch.as_tensor(strands, dtype=torch.float16))  # computed in float32
+    assert half.dtype == torch.float32 and torch.isfinite(half).all()
+    v = torch.tensor([[[-1.0, -1.0, 2.0], [1.0, -1.0, 2.0], [0.0, 1.0, 2.0]]])
+    K = torch.tensor([[[10.0, 0, 7.5], [0, 10.0, 7.5], [0, 0, 1]]])
+    E = torch.eye(4)[None]
+    for faces, size, error, message in [(torch.tensor([[0, 1, -1]]), (16, 16), ValueError, "faces index vertices -1..1"),
+                                        (torch.tensor([[0, 1, 3]]), (16, 16), ValueError, r"the mesh has 3 \(0..2\)"),
+                                        (torch.tensor([[0.0, 1, 2]]), (16, 16), ValueError, "integer vertex indices"),
+                                        (torch.tensor([[0, 1, 2]]), (16, -3), ValueError, "must be positive"),
+                                        (torch.tensor([[0, 1, 2]]), (16.5, 16), TypeError, "whole numbers")]:
+        with pytest.raises(error, match=message):
+            mesh_depth(v, faces, K, E, *size)
+    assert mesh_depth(v, torch.tensor([[0, 1, 2]]), K, E, np.int64(16), 16).shape == (1, 16, 16)

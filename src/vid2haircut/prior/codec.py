@@ -175,8 +175,9 @@ class StrandCodec:
 
     def truncate(self, k: int) -> "StrandCodec":
         """A codec keeping only the first ``k`` components."""
-        if not 1 <= k <= self.k:
-            raise ValueError(f"StrandCodec.truncate: k must be in [1, {self.k}], got {k}")
+        if isinstance(k, bool) or not float(k).is_integer() or not 1 <= k <= self.k:
+            raise ValueError(f"StrandCodec.truncate: k must be a whole number in [1, {self.k}], got {k!r}")
+        k = int(k)
         return StrandCodec(self.mean, self.basis[:k], self.scales[:k], self.n_points, self.meta)
 
     # -- fitting ---------------------------------------------------------------------------
@@ -207,8 +208,9 @@ class StrandCodec:
             raise ValueError("StrandCodec.fit: strands contain NaN or infinite values")
         n, p = x.shape[:2]
         d = 3 * (p - 1)
-        if not 1 <= k <= d:
-            raise ValueError(f"StrandCodec.fit: k must be in [1, {d}] for P={p}, got {k}")
+        if isinstance(k, bool) or not float(k).is_integer() or not 1 <= k <= d:
+            raise ValueError(f"StrandCodec.fit: k must be a whole number in [1, {d}] for P={p}, got {k!r}")
+        k = int(k)
         f = strand_features(x)                                           # (N,D)
         mean = f.mean(0)
         cov = (f - mean).T @ (f - mean) / max(n - 1, 1)                  # (D,D)
@@ -237,7 +239,7 @@ class StrandCodec:
         if points.shape[-2:] != (self.n_points, 3):
             raise ValueError(f"StrandCodec.encode: expected (...,{self.n_points},3) strands, got "
                              f"{tuple(points.shape)}; resample to {self.n_points} points first")
-        if not points.is_floating_point():
+        if points.dtype not in (torch.float32, torch.float64):  # integers, float16 (no FFT), bfloat16
             points = points.float()
         mean, basis, scales = (t.to(points) for t in (self.mean, self.basis, self.scales))
         f = strand_features(points)

@@ -5,6 +5,8 @@ Used as the occluder of the strand renderer: hair behind the head surface is not
 
 from __future__ import annotations
 
+import operator
+
 import torch
 from torch import Tensor
 
@@ -48,6 +50,17 @@ def mesh_depth(
         raise ValueError(f"vertices must have shape (B, V, 3), got {tuple(vertices.shape)}")
     if faces.ndim != 2 or faces.shape[-1] != 3:
         raise ValueError(f"faces must have shape (F, 3), got {tuple(faces.shape)}")
+    if faces.is_floating_point() or faces.dtype == torch.bool:
+        raise ValueError(f"faces must hold integer vertex indices, got {faces.dtype}")
+    if faces.numel() and not (0 <= int(faces.min()) and int(faces.max()) < vertices.shape[1]):
+        raise ValueError(f"faces index vertices {int(faces.min())}..{int(faces.max())}, the mesh has "
+                         f"{vertices.shape[1]} (0..{vertices.shape[1] - 1})")
+    try:
+        width, height = operator.index(width), operator.index(height)
+    except TypeError:
+        raise TypeError(f"image size must be whole numbers, got {width!r} x {height!r}") from None
+    if width <= 0 or height <= 0:
+        raise ValueError(f"image size must be positive, got {width} x {height}")
     B = vertices.shape[0]
     check_cameras(K, world_2_cam, B)
     dev = vertices.device
