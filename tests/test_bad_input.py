@@ -334,7 +334,8 @@ def test_synthesize_overwrite_keeps_the_old_sequence_on_a_bad_value(tmp_path, ca
 def test_strand_files_with_bad_values_are_named(tmp_path):
     """NaN points in .data, a .hair header claiming more points than the file holds (it had tried
     a 32 GiB allocation), per-strand colours / widths / transparencies of the wrong shape or NaN
-    (export had written hair.usda before failing at hair.hair): a ValueError naming the file."""
+    (export had written hair.usda before failing at hair.hair): a ValueError naming the file. Such
+    attributes do not stop reading (other tools store per-point colours): only exporting."""
     import struct
 
     from vid2haircut.export.export import export_files
@@ -362,6 +363,7 @@ def test_strand_files_with_bad_values_are_named(tmp_path):
         with pytest.raises(ValueError, match=rf"s\.npz: .*{message}"):
             export_files(tmp_path / "s.npz", tmp_path / "out")
         assert not (tmp_path / "out").exists()
+        assert load_strands(tmp_path / "s.npz").n_strands == 5
 
 
 def test_python_api_arguments_are_named():

@@ -369,7 +369,7 @@ def test_bad_arguments_are_refused_before_any_kernel(backend):
         (dict(bins=10**9), ValueError, "2 <= bins <= 1024"),
         (dict(bins=2.5), TypeError, "bins must be a whole number"),
         (dict(depth_bin=float("nan")), ValueError, "finite depth_bin > 0"),
-        (dict(width=64.0), TypeError, "width must be a whole number"),
+        (dict(width=64.5), TypeError, "width must be a whole number"),
         (dict(width=2**36, height=2**36), ValueError, "at most 16384 a side"),
         (dict(points=pts.half()), ValueError, "float32 or float64 tensor, got torch.float16"),
         (dict(K=K * float("nan")), ValueError, "K and world_2_cam must be finite"),
@@ -391,3 +391,7 @@ def test_bad_arguments_are_refused_before_any_kernel(backend):
     out = render_strands(pts, K, E, np.int64(64), torch.tensor(64), backend=backend,
                          head_depth=np.full((1, 64, 64), np.inf))
     assert float(out.silhouette.sum()) > 1
+    # integer cameras are cast to the points' dtype (as before these checks), 64.0 is a whole number
+    same = render_strands(pts, torch.tensor([[[400, 0, 31], [0, 400, 31], [0, 0, 1]]]), torch.eye(4, dtype=torch.int64)[None],
+                          64.0, 64, backend=backend)
+    assert float(same.silhouette.sum()) > 1

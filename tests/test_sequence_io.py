@@ -233,3 +233,7 @@ def test_error_masks_written_as_0_1(dataset: Path) -> None:
     assert seq.read_hair_mask(0).max() == 1.0
     write_image(frame_path(root, "hair_masks", "b2", 0, "png"), m * 0)  # an empty mask stays valid
     assert seq.read_hair_mask(0).max() == 0.0
+    noise = np.zeros((H, W), np.uint8)
+    noise[3, 4] = 1  # one pixel of compression noise in an empty mask
+    write_image(frame_path(root, "hair_masks", "b2", 0, "png"), noise)
+    assert seq.read_hair_mask(0).max() == 1 / 255

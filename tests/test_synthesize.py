@@ -46,6 +46,9 @@ def head():
 def test_every_spec_file_exists_with_shapes(seq) -> None:
     root = seq.root
     assert (root.parent.parent / "calibration" / "camera_params.json").is_file()
+    from vid2haircut.synth.sequence import SYNTH_MARKER
+
+    assert (root / SYNTH_MARKER).is_file()  # the workflow knows the folder as the synthesiser's
     assert seq.serial == SERIAL and seq.frame_indices == list(range(6))
     assert (seq.camera.width, seq.camera.height) == (96, 96)
     for t in range(6):

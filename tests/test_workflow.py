@@ -166,6 +166,11 @@ def test_check_config_names_the_key(tmp_path):
     (real / "images").mkdir(parents=True)
     with pytest.raises(ValueError, match="synth.sequences names synth_0000/HAIR, but .* did not write"):
         check_config(_base_config(tmp_path))
+    # a synthesis that was interrupted before meta.json: its marker says the folder is the synthesiser's
+    from vid2haircut.synth.sequence import SYNTH_MARKER
+
+    (real / SYNTH_MARKER).write_text("x")
+    check_config(_base_config(tmp_path))
 
 
 def test_variant_settings_merge_key_by_key():

@@ -264,9 +264,25 @@ def polyline_tangents(points: np.ndarray) -> np.ndarray:
     return t.astype(np.float32)
 
 
-KNOWN_ATTRIBUTES = {"color": (3,), "width": (), "transparency": ()}
-"""Per-strand attributes the exporters write, with their shape after the leading N: checked on
-construction, so a file with a wrong one is refused when read, not half way through an export."""
+EXPORTED_ATTRIBUTES = {"color": (3,), "width": (), "transparency": ()}
+"""Per-strand attributes the exporters write, with their shape after the leading N
+(:func:`check_exported_attributes`; other tools' files may hold other shapes, which reading keeps)."""
+
+
+def check_exported_attributes(strands: "StrandSet", what: str = "StrandSet") -> None:
+    """Raise ValueError (prefixed ``what``) unless the attributes the exporters write have their
+    per-strand size (:data:`EXPORTED_ATTRIBUTES`; e.g. a width of (N, 1) for (N,)) and finite
+    numeric values."""
+    n = strands.n_strands
+    for key, tail in EXPORTED_ATTRIBUTES.items():
+        if key not in strands.attributes:
+            continue
+        arr = strands.attributes[key]
+        if arr.size != n * int(np.prod(tail)) or arr.dtype.kind not in "biuf":  # (N, 1) for (N,) is fine
+            raise ValueError(f"{what}: attribute {key!r} must be numeric of shape {(n, *tail)} to be exported, "
+                             f"got {arr.dtype} {arr.shape}")
+        if not np.isfinite(arr).all():
+            raise ValueError(f"{what}: attribute {key!r} has NaN or infinite values")
 
 
 @dataclass(frozen=True)
@@ -302,13 +318,6 @@ class StrandSet:
             if arr.ndim == 0 or arr.shape[0] != pts.shape[0]:
                 raise ValueError(f"StrandSet: attribute {key!r} must have leading dimension "
                                  f"N={pts.shape[0]}, got shape {arr.shape}")
-            if key in KNOWN_ATTRIBUTES:
-                want = (pts.shape[0], *KNOWN_ATTRIBUTES[key])
-                if arr.shape != want or arr.dtype.kind not in "biuf":
-                    raise ValueError(f"StrandSet: attribute {key!r} must be numeric of shape {want}, "
-                                     f"got {arr.dtype} {arr.shape}")
-                if not np.isfinite(arr).all():
-                    raise ValueError(f"StrandSet: attribute {key!r} has NaN or infinite values")
             attrs[str(key)] = arr
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "attributes", attrs)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -121,9 +122,6 @@ def check_config(config: dict) -> None:
     Raises:
         ValueError naming the config key and what is wrong.
     """
-    import argparse
-
-    from vid2haircut.cli.argtypes import device
     from vid2haircut.fit.pipeline import stage1_config, stage2_config
     from vid2haircut.head import HEAD_NAMES
     from vid2haircut.synth.hairstyles import FAMILIES
@@ -131,10 +129,9 @@ def check_config(config: dict) -> None:
     bad = _non_finite(config)
     if bad:
         raise ValueError(f"config: {', '.join(bad)}: not a finite number")
-    try:
-        device(str(config.get("device", "cpu")))
-    except argparse.ArgumentTypeError as e:
-        raise ValueError(f"config: device: {e}") from None
+    dev = str(config.get("device", "cpu"))
+    if not re.fullmatch(r"cpu|cuda(:\d+)?", dev):  # (whether CUDA is there is the job's machine's business)
+        raise ValueError(f"config: device: {dev!r} is not a device (cpu, cuda or cuda:N)")
     fit = config.get("fit", {})
     try:
         stage1_config(fit.get("stage1"))
@@ -180,9 +177,12 @@ def check_config(config: dict) -> None:
     synth = config.get("synth", {}).get("sequences", [])
     if not root.exists() and not synth:
         raise ValueError(f"config: dataset_root: {root}: no such folder (and synth.sequences is empty)")
+    from vid2haircut.synth.sequence import SYNTH_MARKER
+
     for entry in synth:
         seq = root / entry["subject"] / "sequences" / entry["seq"]
-        if seq.is_dir() and any(seq.iterdir()) and not (seq / "ground_truth" / "meta.json").is_file():
+        ours = (seq / "ground_truth" / "meta.json").is_file() or (seq / SYNTH_MARKER).is_file()
+        if seq.is_dir() and any(seq.iterdir()) and not ours:
             raise ValueError(f"config: synth.sequences names {entry['subject']}/{entry['seq']}, but {seq} holds a "
                              "sequence the synthesiser did not write (no ground_truth/meta.json); it would be "
                              "replaced. Remove the entry, or the folder")

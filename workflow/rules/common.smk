@@ -10,7 +10,7 @@ from snakemake.utils import validate
 from vid2haircut import workflow_support as ws
 
 
-_problems = ws.schema_errors(config, Path(workflow.basedir) / "schemas" / "config.schema.yaml")
+_problems = ws.schema_errors(config, Path(workflow.current_basedir) / ".." / "schemas" / "config.schema.yaml")
 if _problems:
     raise ValueError("config does not match workflow/schemas/config.schema.yaml:\n  " + "\n  ".join(_problems))
 validate(config, schema="../schemas/config.schema.yaml")  # (also fills the schema's defaults)

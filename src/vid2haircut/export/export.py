@@ -13,7 +13,7 @@ import numpy as np
 from vid2haircut.export.usd import write_usd_curves
 from vid2haircut.io.atomic import check_outputs, write_text
 from vid2haircut.io.strand_formats import load_strands, save_strands
-from vid2haircut.strands import StrandSet
+from vid2haircut.strands import StrandSet, check_exported_attributes
 
 __all__ = ["export_hairstyle", "export_files", "write_obj"]
 
@@ -61,6 +61,7 @@ def export_hairstyle(strands: StrandSet, out_dir: str | os.PathLike, head_vertic
         raise ValueError("export_hairstyle: give both head_vertices and head_faces, or neither")
     if strands.n_strands == 0:
         raise ValueError("export_hairstyle: the strand set is empty")
+    check_exported_attributes(strands, "export_hairstyle")  # before the first file (one had been half-written)
     out = Path(out_dir)
     check_outputs([out / f"{stem}.{fmt}" for fmt in (usd_format, "hair", "data", "ply", "npz")]
                   + ([out / "head.obj"] if head_vertices is not None else []))
@@ -84,6 +85,7 @@ def export_files(strands_path: str | os.PathLike, out_dir: str | os.PathLike, he
     strands = load_strands(strands_path)
     if strands.n_strands == 0:
         raise ValueError(f"{strands_path}: the strand file holds no strands")
+    check_exported_attributes(strands, str(strands_path))
     verts = faces = None
     if head:
         from vid2haircut.head import get_head

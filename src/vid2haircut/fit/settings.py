@@ -36,9 +36,10 @@ _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve
            "lr_mlp": (0.0, math.inf), "lr_codes": (0.0, math.inf), "lr_final": (0.0, math.inf),
            "strand_width": (1e-6, math.inf), "dense_width": (1e-6, math.inf), "depth_bin": (1e-6, math.inf),
            "mask_threshold": (0.0, 1.0), "observed_fraction": (0.0, math.nextafter(1.0, 2.0)),
-           "silhouette_opacity": (1e-3, math.nextafter(1.0, 2.0)),
-           "dense_silhouette_opacity": (1e-3, math.nextafter(1.0, 2.0)),
-           "vis_weight": (0.0, math.nextafter(1.0, 2.0)), "dense_vis_weight": (0.0, math.nextafter(1.0, 2.0)),
+           # the renderer's own limits: an opacity above its alpha_min (exp(-4.5)), a visibility weight > 0
+           "silhouette_opacity": (math.nextafter(math.exp(-4.5), 1.0), math.nextafter(1.0, 2.0)),
+           "dense_silhouette_opacity": (math.nextafter(math.exp(-4.5), 1.0), math.nextafter(1.0, 2.0)),
+           "vis_weight": (1e-9, math.nextafter(1.0, 2.0)), "dense_vis_weight": (1e-9, math.nextafter(1.0, 2.0)),
            "max_offset": (0.0, math.inf), "code_init_std": (0.0, math.inf)}
 # Every loss weight (``weights.*``) lies in [0, inf): a negative weight would reward the term.
 # Settings that name one of a few modes, checked the same way.

@@ -21,8 +21,10 @@ def frame_numbers(values, path: str | Path, key: str = "frames") -> np.ndarray:
     a = np.asarray(values)
     if a.ndim != 1:
         raise ValueError(f"{path}: '{key}' must be a 1-D array of frame numbers, got shape {a.shape}")
-    if a.dtype.kind not in "iuf" or a.dtype.kind == "f" and not np.isfinite(a).all():
+    if a.dtype.kind not in "iuf":
         raise ValueError(f"{path}: '{key}' must hold frame numbers, got {a.dtype} values")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise ValueError(f"{path}: '{key}' has non-finite frame numbers")
     if a.dtype.kind == "f" and (a != np.round(a)).any():
         bad = a[a != np.round(a)][:3].tolist()
         raise ValueError(f"{path}: '{key}' must hold whole frame numbers, got {bad}")
@@ -54,9 +56,11 @@ def float_array(values, path: str | Path, key: str, shape: tuple | None = None, 
     return a.astype(dtype)
 
 
-def rigid(poses: np.ndarray, tol: float = 1e-4) -> np.ndarray:
+def rigid(poses: np.ndarray, tol: float = 1e-2) -> np.ndarray:
     """Which of the (..., 4, 4) matrices ``poses`` are rigid transforms: an orthonormal rotation
-    (to ``tol``) with determinant +1, and a last row of 0 0 0 1. Returns a bool array of shape (...)."""
+    (R^T R = I to ``tol``: loose enough for calibrations rounded to 3 decimals and the head poses
+    computed from them, tight enough to refuse a scale, a shear or a zero matrix) with determinant
+    +1, and a last row of 0 0 0 1. Returns a bool array of shape (...)."""
     R = poses[..., :3, :3]
     ortho = np.abs(np.swapaxes(R, -1, -2) @ R - np.eye(3)).max(axis=(-2, -1)) < tol
-    return ortho & (np.linalg.det(R) > 0) & (np.abs(poses[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=-1) < 1e-9)
+    return ortho & (np.linalg.det(R) > 0) & (np.abs(poses[..., 3, :] - [0.0, 0.0, 0.0, 1.0]).max(axis=-1) < 1e-6)

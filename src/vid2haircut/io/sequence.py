@@ -120,9 +120,10 @@ def _load_npz(path: Path, keys: tuple[str, ...]) -> dict[str, np.ndarray]:
 
 
 def _check_0_255(img: np.ndarray, path: Path, what: str) -> None:
-    """Refuse an 8-bit mask whose largest value is 1: one written as 0/1 instead of 0..255 would
-    otherwise read as (almost) empty, and every stage after it would fit to nothing."""
-    if img.dtype == np.uint8 and img.max(initial=0) == 1:
+    """Refuse an 8-bit mask whose largest value is 1 on more than 0.5% of its pixels: one written as
+    0/1 instead of 0..255 would otherwise read as (almost) empty, and every stage after it would fit
+    to nothing (a few 1s in an empty frame are compression noise, and pass)."""
+    if img.dtype == np.uint8 and img.max(initial=0) == 1 and np.count_nonzero(img) > 0.005 * img.size:
         raise ValueError(f"{path}: values are only 0 and 1, but {what} are 0..255 (255 = hair / foreground); "
                          "multiply the mask by 255")
 

@@ -151,12 +151,12 @@ def render_strands(
         if head_depth.shape != (B, height, width) or not head_depth.is_floating_point():
             raise ValueError(f"head_depth must be a float tensor of shape ({B}, {height}, {width}), got "
                              f"{head_depth.dtype} {tuple(head_depth.shape)}")
-        hd = head_depth.detach()
-        if bool(np.isnan(hd.numpy()).any() if hd.device.type == "cpu" and hd.dtype in NUMPY_FLOATS
-                else torch.isnan(hd).any()):
+        hd = head_depth.detach()  # (checked on the CPU only: on a GPU it would be a device sync per render)
+        if hd.device.type == "cpu" and bool(np.isnan(hd.numpy() if hd.dtype in NUMPY_FLOATS else hd.float().numpy()).any()):
             raise ValueError("head_depth has NaN entries (use inf where there is no head)")
     K = torch.as_tensor(K, device=points.device)
     world_2_cam = torch.as_tensor(world_2_cam, device=points.device)
+    K, world_2_cam = (t if t.is_floating_point() else t.to(points.dtype) for t in (K, world_2_cam))
     check_cameras(K, world_2_cam, B)
     S = N * (P - 1)
     G = B * S
@@ -201,11 +201,19 @@ def render_strands(
 
 
 def _whole(name: str, value) -> int:
-    """``value`` as an int when it is a whole number (an int, a numpy integer, a 0-d integer tensor)."""
+    """``value`` as an int when it is a whole number (an int, a numpy integer, a 0-d integer tensor,
+    or a float with no fractional part, such as 64.0)."""
     try:
         return operator.index(value)
     except TypeError:
-        raise TypeError(f"{name} must be a whole number (int), got {value!r}") from None
+        pass
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        f = math.nan
+    if not f.is_integer():
+        raise TypeError(f"{name} must be a whole number, got {value!r}")
+    return int(f)
 
 
 def _finish(sums: PixelSums, visibility: Tensor, g, fused: bool = False) -> StrandRender:

@@ -25,7 +25,7 @@ import numpy as np
 from vid2haircut import __version__
 from vid2haircut.camera import Camera, load_cameras, look_at, save_cameras
 from vid2haircut.geometry import apply_transform, matrix_to_axis_angle
-from vid2haircut.io.atomic import write_image, write_json, write_npz
+from vid2haircut.io.atomic import write_image, write_json, write_npz, write_text
 from vid2haircut.io.sequence import (calibration_path, frame_path, sequence_dir, write_depth,
                                      write_landmarks, write_mask, write_tracking)
 from vid2haircut.synth.motion import MotionParams, sway_basis, sway_points, world_from_head
@@ -34,6 +34,10 @@ from vid2haircut.synth.photo import PhotoStyle, render_photo
 log = logging.getLogger(__name__)
 
 IMAGE_FORMATS = ("jpg", "png")
+
+
+SYNTH_MARKER = ".vid2haircut-synthesized"
+"""File the synthesiser writes first into a sequence folder it makes (``ground_truth/meta.json`` comes last)."""
 
 
 @dataclass(frozen=True)
@@ -258,6 +262,9 @@ def synthesize_sequence(dataset_root: str | Path, subject: str, seq_name: str, c
     cameras = merged_calibration(calib, cfg.serial, cam, replace=overwrite)
     if exists:  # everything is validated: only now replace the old folder
         shutil.rmtree(root)
+    # written first: a folder the synthesiser began (meta.json comes last) is known as its own even
+    # when the run was interrupted (the workflow's config check, vid2haircut.workflow_support)
+    write_text(root / SYNTH_MARKER, f"vid2haircut {__version__} synthesize\n")
     motion = cfg.motion()
     poses = world_from_head(motion, np.arange(cfg.n_frames))
     log.info("%s/%s: hairstyle %s seed %d (%d x %d) in %.1fs", subject, seq_name, cfg.family, cfg.seed,
