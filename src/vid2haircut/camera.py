@@ -8,13 +8,12 @@ one :class:`Camera` per serial.
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from vid2haircut.io.checks import rigid
+from vid2haircut.checks import as_whole, rigid
 
 
 @dataclass(frozen=True)
@@ -41,10 +40,10 @@ class Camera:
             raise ValueError(f"Camera: world_2_cam must be a finite 4x4 matrix, got shape {E.shape}")
         size = []
         for name in ("width", "height"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not float(v).is_integer() or v <= 0:
-                raise ValueError(f"Camera: {name} must be a positive whole number of pixels, got {v!r}")
-            size.append(int(v))
+            v = as_whole(getattr(self, name))
+            if v is None or v <= 0:
+                raise ValueError(f"Camera: {name} must be a positive whole number of pixels, got {getattr(self, name)!r}")
+            size.append(v)
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "world_2_cam", E)
         object.__setattr__(self, "width", size[0])
@@ -132,10 +131,10 @@ def load_cameras(path: str | Path) -> dict[str, Camera]:
                          f"got {type(data['world_2_cam']).__name__}")
     size = []
     for key in ("width", "height"):
-        v = data[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v != int(v) or v <= 0:
-            raise ValueError(f"{path}: '{key}' must be a positive whole number of pixels, got {v!r}")
-        size.append(int(v))
+        v = as_whole(data[key])
+        if v is None or v <= 0:
+            raise ValueError(f"{path}: '{key}' must be a positive whole number of pixels, got {data[key]!r}")
+        size.append(v)
     cams = {}
     for serial, m in data["world_2_cam"].items():
         m = _finite_matrix(path, f"world_2_cam['{serial}']", m, (4, 4))

@@ -10,12 +10,9 @@ model files, non-finite numbers, the dataset folder.
 
 from __future__ import annotations
 
-import logging
 import math
 import re
 from pathlib import Path
-
-log = logging.getLogger(__name__)
 
 
 def discover_sequences(dataset_root: str | Path) -> set[tuple[str, str]]:
@@ -122,7 +119,8 @@ def check_config(config: dict) -> None:
     Raises:
         ValueError naming the config key and what is wrong.
     """
-    from vid2haircut.fit.pipeline import stage1_config, stage2_config
+    from vid2haircut.fit.config import Stage1Config, Stage2Config
+    from vid2haircut.fit.settings import apply_overrides
     from vid2haircut.head import HEAD_NAMES
     from vid2haircut.synth.hairstyles import FAMILIES
 
@@ -134,7 +132,7 @@ def check_config(config: dict) -> None:
         raise ValueError(f"config: device: {dev!r} is not a device (cpu, cuda or cuda:N)")
     fit = config.get("fit", {})
     try:
-        stage1_config(fit.get("stage1"))
+        apply_overrides(Stage1Config(), fit.get("stage1"))
     except ValueError as e:
         raise ValueError(f"config: fit.stage1: {e}") from None
     variants = active_variants(config.get("variants", {"full": {}}))
@@ -145,7 +143,7 @@ def check_config(config: dict) -> None:
         where = "fit.stage2" if not overrides else f"variants.{name} (over fit.stage2)"
         merged = variant_settings(fit.get("stage2"), overrides)
         try:
-            cfg = stage2_config(merged)
+            cfg = apply_overrides(Stage2Config(), merged)
         except ValueError as e:
             raise ValueError(f"config: {where}: {e}") from None
         if "n_keyframes" in merged and cfg.n_keyframes > n_keyframes:  # (the default: every keyframe there is)

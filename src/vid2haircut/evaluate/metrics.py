@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vid2haircut.checks import as_whole
 from vid2haircut.io.atomic import write_json
 from vid2haircut.io.strand_formats import load_strands
 from vid2haircut.strands import StrandSet
@@ -183,8 +184,7 @@ def evaluate_strands(pred: StrandSet, gt: StrandSet, n_points: int = 100, max_po
                             f"{type(s).__name__}; wrap (N, P, 3) points as StrandSet(points)")
         if s.n_strands == 0:
             raise ValueError(f"evaluate_strands: the {name} strand set is empty")
-    if max_points is not None and (isinstance(max_points, bool) or not float(max_points).is_integer()
-                                   or max_points < 0):
+    if max_points is not None and (as_whole(max_points) is None or max_points < 0):
         raise ValueError(f"evaluate_strands: max_points must be a whole number >= 0 (0 or None: every point), "
                          f"got {max_points!r}")
     if pred.head_model and gt.head_model and pred.head_model != gt.head_model:

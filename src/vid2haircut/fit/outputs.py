@@ -28,7 +28,7 @@ from vid2haircut.fit.carve import carve_strands
 from vid2haircut.fit.components import LossWeights
 from vid2haircut.fit.trainer import History
 from vid2haircut.io.atomic import atomic_path, write_image, write_json, write_npz
-from vid2haircut.io.checks import float_array
+from vid2haircut.checks import float_array
 from vid2haircut.io.strand_formats import save_strands
 from vid2haircut.strands import StrandSet
 

@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from vid2haircut.fit.components import LossWeights
 from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
 from vid2haircut.fit.losses import SMOOTH_DIRECTION_FORMS
 from vid2haircut.fit.scene import HIDDEN_DIRECTION_SOURCES
@@ -71,8 +72,7 @@ def _set(obj: Any, path: list[str], value: Any, full: str) -> None:
             if not math.isfinite(value):
                 raise ValueError(f"settings: {full!r} must be a finite number, got {value!r}")
             value = type(cur)(value)
-            weight = type(obj).__name__ == "LossWeights"
-            low, high = (0.0, math.inf) if weight else _RANGES.get(name, (-math.inf, math.inf))
+            low, high = (0.0, math.inf) if isinstance(obj, LossWeights) else _RANGES.get(name, (-math.inf, math.inf))
             if not low <= value < high:
                 raise ValueError(f"settings: {full!r} must be in [{low:g}, {high:g}), got {value!r}")
         if name in _CHOICES and value not in _CHOICES[name]:

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vid2haircut.front.pose import SHAPE_NAMES, HeadFit
-from vid2haircut.io.checks import float_array, frame_numbers, rigid
+from vid2haircut.checks import float_array, frame_numbers, rigid
 
 
 def resolve_head(spec: str, shape: np.ndarray | None = None, landmark_embedding: str | None = None):

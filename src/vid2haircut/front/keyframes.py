@@ -29,13 +29,13 @@ Algorithm (:func:`select_keyframes`):
 from __future__ import annotations
 
 import json
-import math
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from vid2haircut.checks import as_whole
 from vid2haircut.front.pose import PoseFitConfig, pnp_pose, project_landmarks, view_angles
 
 log = logging.getLogger(__name__)
@@ -87,8 +87,8 @@ class KeyframeSelection:
 
 def _is_frame(t) -> bool:
     """Whether a JSON value is a frame number: a whole number >= 0 (not a bool, not 1.5)."""
-    return (not isinstance(t, bool) and isinstance(t, (int, float)) and math.isfinite(t) and t == int(t)
-            and t >= 0)
+    v = as_whole(t)
+    return v is not None and v >= 0
 
 
 def load_keyframes(path: str | Path) -> KeyframeSelection:

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from vid2haircut.camera import Camera, load_cameras
-from vid2haircut.io.checks import float_array, frame_numbers
+from vid2haircut.checks import float_array, frame_numbers
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
 _FRAME_RE = re.compile(r"^frame_(\d+)\.(jpg|jpeg|png)$", re.IGNORECASE)

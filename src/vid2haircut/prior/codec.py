@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from vid2haircut.checks import as_whole
 from vid2haircut.io.atomic import write_npz
 
 __all__ = ["StrandCodec", "component_mask", "strand_features", "features_to_offsets"]
@@ -175,9 +176,10 @@ class StrandCodec:
 
     def truncate(self, k: int) -> "StrandCodec":
         """A codec keeping only the first ``k`` components."""
-        if isinstance(k, bool) or not float(k).is_integer() or not 1 <= k <= self.k:
+        kk = as_whole(k)
+        if kk is None or not 1 <= kk <= self.k:
             raise ValueError(f"StrandCodec.truncate: k must be a whole number in [1, {self.k}], got {k!r}")
-        k = int(k)
+        k = kk
         return StrandCodec(self.mean, self.basis[:k], self.scales[:k], self.n_points, self.meta)
 
     # -- fitting ---------------------------------------------------------------------------
@@ -208,9 +210,10 @@ class StrandCodec:
             raise ValueError("StrandCodec.fit: strands contain NaN or infinite values")
         n, p = x.shape[:2]
         d = 3 * (p - 1)
-        if isinstance(k, bool) or not float(k).is_integer() or not 1 <= k <= d:
+        kk = as_whole(k)
+        if kk is None or not 1 <= kk <= d:
             raise ValueError(f"StrandCodec.fit: k must be a whole number in [1, {d}] for P={p}, got {k!r}")
-        k = int(k)
+        k = kk
         f = strand_features(x)                                           # (N,D)
         mean = f.mean(0)
         cov = (f - mean).T @ (f - mean) / max(n - 1, 1)                  # (D,D)

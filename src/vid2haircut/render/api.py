@@ -31,12 +31,12 @@ Breakdown and history: README, Performance; benchmarks/RESULTS.md, "The renderer
 from __future__ import annotations
 
 import math
-import operator
 
 import numpy as np
 import torch
 from torch import Tensor
 
+from vid2haircut.checks import as_whole
 from vid2haircut.render.allocator import tune_cpu_allocator
 from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, check_points, segment_gaussians
@@ -201,19 +201,11 @@ def render_strands(
 
 
 def _whole(name: str, value) -> int:
-    """``value`` as an int when it is a whole number (an int, a numpy integer, a 0-d integer tensor,
-    or a float with no fractional part, such as 64.0)."""
-    try:
-        return operator.index(value)
-    except TypeError:
-        pass
-    try:
-        f = float(value)
-    except (TypeError, ValueError):
-        f = math.nan
-    if not f.is_integer():
+    """``value`` as an int (:func:`vid2haircut.checks.as_whole`); TypeError naming ``name`` otherwise."""
+    v = as_whole(value)
+    if v is None:
         raise TypeError(f"{name} must be a whole number, got {value!r}")
-    return int(f)
+    return v
 
 
 def _finish(sums: PixelSums, visibility: Tensor, g, fused: bool = False) -> StrandRender:

@@ -5,10 +5,10 @@ Used as the occluder of the strand renderer: hair behind the head surface is not
 
 from __future__ import annotations
 
-import operator
-
 import torch
 from torch import Tensor
+
+from vid2haircut.checks import as_whole
 
 from vid2haircut.render.project import check_cameras, project_camera_points, to_camera
 
@@ -55,10 +55,10 @@ def mesh_depth(
     if faces.numel() and not (0 <= int(faces.min()) and int(faces.max()) < vertices.shape[1]):
         raise ValueError(f"faces index vertices {int(faces.min())}..{int(faces.max())}, the mesh has "
                          f"{vertices.shape[1]} (0..{vertices.shape[1] - 1})")
-    try:
-        width, height = operator.index(width), operator.index(height)
-    except TypeError:
-        raise TypeError(f"image size must be whole numbers, got {width!r} x {height!r}") from None
+    w, h = as_whole(width), as_whole(height)
+    if w is None or h is None:
+        raise TypeError(f"image size must be whole numbers, got {width!r} x {height!r}")
+    width, height = w, h
     if width <= 0 or height <= 0:
         raise ValueError(f"image size must be positive, got {width} x {height}")
     B = vertices.shape[0]

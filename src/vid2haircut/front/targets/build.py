@@ -30,7 +30,7 @@ from vid2haircut.front.pose import HeadFit, project_landmarks, shape_axes
 from vid2haircut.front.targets.depth import DepthConfig, depth_targets
 from vid2haircut.front.targets.mask import MaskConfig, hair_mask_fallback
 from vid2haircut.front.targets.orientation import GaborConfig, orientation_map
-from vid2haircut.io.checks import float_array, frame_numbers
+from vid2haircut.checks import float_array, frame_numbers
 
 log = logging.getLogger(__name__)
 

@@ -1,15 +1,34 @@
-"""Checks of arrays read from users' files: each error names the file and the key.
+"""Value checks shared by the file readers and the Python API.
 
-Readers of ``.npz`` inputs (landmarks, tracking, head fits, targets) call these instead of a bare
-``astype``, which would turn a float frame number 3.6 into frame 3, or a string array into a
-"could not convert string to float" error that names no file.
+Readers of ``.npz`` inputs (landmarks, tracking, head fits, targets) call :func:`frame_numbers` and
+:func:`float_array` instead of a bare ``astype``, which would turn a float frame number 3.6 into
+frame 3, or a string array into a "could not convert string to float" error that names no file;
+each error names the file and the key. :func:`as_whole` is the one test of "a whole number" that
+sizes, counts and frame numbers use (callers raise their own error, naming the argument).
 """
 
 from __future__ import annotations
 
+import operator
 from pathlib import Path
 
 import numpy as np
+
+
+def as_whole(value) -> int | None:
+    """``value`` as an int when it is a whole number (an int, a numpy integer, a 0-d integer tensor,
+    or a finite float with no fractional part such as 64.0), else None (bools and strings included)."""
+    if isinstance(value, (bool, str, bytes)):
+        return None
+    try:
+        return operator.index(value)
+    except TypeError:
+        pass
+    try:
+        f = float(value)
+    except (TypeError, ValueError):
+        return None
+    return int(f) if f.is_integer() else None
 
 
 def frame_numbers(values, path: str | Path, key: str = "frames") -> np.ndarray:
