@@ -7,13 +7,13 @@ the texel of the R x R map that their root falls in, takes each strand's length 
 texel's median, and prints the spread of that ratio per family and pooled: the plain standard
 deviation and the robust one (1.4826 x the median absolute deviation, which a few strands that
 curl back or stop short do not inflate). The pooled robust spread at R = 32 is the default
-``length_spread`` of both stages (:func:`vid2haircut.strands.vary_lengths`).
+``length_spread`` of both stages (:func:`vid2haircut.polylines.vary_lengths`).
 
 It also prints how far the strands of one texel fan out: at 25/50/75/100% of the points, each
 strand's root-relative point minus the texel's median one, its component across the texel's median
 direction there, and the per-axis robust spread of that (median distance / 1.1774, the per-axis
 standard deviation for a 2-D normal). The pooled value at the tip is the one measured for
-``tip_scatter`` (:func:`vid2haircut.strands.scatter_strands`, which grows the displacement with the
+``tip_scatter`` (:func:`vid2haircut.polylines.scatter_strands`, which grows the displacement with the
 square root of the arc-length fraction, as these spreads do; off by default, see
 ``benchmarks/RESULTS.md``, "Uneven ends").
 

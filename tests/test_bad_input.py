@@ -371,7 +371,8 @@ def test_python_api_arguments_are_named():
     from vid2haircut.camera import Camera, intrinsics_from_fov, look_at
     from vid2haircut.evaluate.metrics import evaluate_strands
     from vid2haircut.io.strand_formats import save_strands
-    from vid2haircut.strands import StrandSet, resample_polyline_list
+    from vid2haircut.polylines import resample_polyline_list
+    from vid2haircut.strands import StrandSet
 
     pts = np.zeros((2, 4, 3), np.float32)
     pts[:, :, 2] = np.arange(4) * 0.01

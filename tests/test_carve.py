@@ -10,7 +10,7 @@ import torch
 from vid2haircut.fit.carve import carve_lengths, carve_strands, silhouette_excess
 from vid2haircut.fit.data import downsample_targets
 from vid2haircut.fit.image_terms import outside_loss
-from vid2haircut.strands import cut_strands
+from vid2haircut.polylines import cut_strands
 
 
 def _camera(width: int = 32, height: int = 24):

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from vid2haircut.strands import (StrandSet, polyline_tangents, resample_polyline_list, resample_polylines,
-                                 scatter_strands, vary_lengths)
+from vid2haircut.polylines import (polyline_tangents, resample_polyline_list, resample_polylines, scatter_strands,
+                                   vary_lengths)
+from vid2haircut.strands import StrandSet
 
 
 def _arcs(n_strands=3, p=40):

@@ -14,7 +14,7 @@ hair. Carving cuts such strands back:
    ``tolerance`` outside, provided at least ``min_fraction`` of the points from there to the tip
    are outside too; a strand that leaves the silhouette and comes back (a bulge) is kept whole,
    as its remainder still runs through the hair.
-3. :func:`vid2haircut.strands.cut_strands` resamples each cut strand to its P points.
+3. :func:`vid2haircut.polylines.cut_strands` resamples each cut strand to its P points.
 
 The decoding is rigid per keyframe (the fitted head pose, no per-frame sway), so the tolerance
 also covers the hair motion between keyframes: the ground truth of the quality benchmark itself
@@ -31,8 +31,8 @@ from torch import Tensor
 
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.image_terms import shown_pixels
+from vid2haircut.polylines import cut_strands
 from vid2haircut.render.project import project_points
-from vid2haircut.strands import cut_strands
 
 __all__ = ["silhouette_excess", "carve_lengths", "carve_strands", "Carving"]
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 # Dense-output decoding shared by both stages (vid2haircut.fit.outputs.dense_strands).
 LENGTH_SPREAD = 0.04
 """Default relative spread of the dense strands' lengths (uneven ends,
-:func:`vid2haircut.strands.vary_lengths`): the robust spread of strand length within one texel of the
+:func:`vid2haircut.polylines.vary_lengths`): the robust spread of strand length within one texel of the
 32x32 map over the prior's training corpus (``benchmarks/length_spread.py``)."""
 CARVE_TOLERANCE = 1.0
 """Default of ``carve_tolerance`` (both stages): the dense strands are cut back where a keyframe
@@ -19,7 +19,7 @@ shows them more than this many fitting pixels outside its target silhouette, in 
 (:mod:`vid2haircut.fit.carve`; 0 = off). Measured on the quality benchmark (``benchmarks/RESULTS.md``,
 "Silhouette carving")."""
 TIP_SCATTER_MEASURED = 0.0022
-"""The tip fan-out (:func:`vid2haircut.strands.scatter_strands`) measured and not kept: the corpus's
+"""The tip fan-out (:func:`vid2haircut.polylines.scatter_strands`) measured and not kept: the corpus's
 spread across the strands' direction within one texel. Lower Chamfer_pts, higher Chamfer_angle
 (``benchmarks/RESULTS.md``, "Uneven ends"), so ``tip_scatter`` defaults to 0."""
 

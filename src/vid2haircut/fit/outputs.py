@@ -136,15 +136,15 @@ def dense_strands(z: torch.Tensor, mask: torch.Tensor, head: Any, codec: Any, n_
     """Dense canonical strands of a map: the map is extended beyond its guides (:func:`extend_map`),
     upsampled by the HAAR scheme (:func:`vid2haircut.prior.hairmap.decode_dense`), pushed out
     of the head (:func:`push_out_of_head`, skipped when ``collision_margin`` is None) and, when
-    ``length_spread`` > 0, given uneven ends (:func:`vid2haircut.strands.vary_lengths` with that
+    ``length_spread`` > 0, given uneven ends (:func:`vid2haircut.polylines.vary_lengths` with that
     relative spread and ``seed``), and when ``tip_scatter`` > 0 fanned out around their paths
-    (:func:`vid2haircut.strands.scatter_strands`, tips moved by that per-axis spread in metres);
+    (:func:`vid2haircut.polylines.scatter_strands`, tips moved by that per-axis spread in metres);
     either way pushed out again, as a moved strand may reach the head."""
     with torch.no_grad():
         d = decode_dense_map(z, mask, head, codec, n_strands, seed, threshold)
     pts = d.points if collision_margin is None else push_out_of_head(d.points, head, collision_margin)
     if length_spread > 0 or tip_scatter > 0:
-        from vid2haircut.strands import scatter_strands, vary_lengths
+        from vid2haircut.polylines import scatter_strands, vary_lengths
 
         moved = scatter_strands(vary_lengths(pts.cpu().numpy(), length_spread, seed), tip_scatter, seed)
         pts = torch.as_tensor(moved, device=pts.device)

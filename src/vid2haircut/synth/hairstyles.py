@@ -22,7 +22,8 @@ import zlib
 
 import numpy as np
 
-from ..strands import StrandSet, resample_polylines
+from ..polylines import resample_polylines
+from ..strands import StrandSet
 from .hair_collide import lift_roots, resolve_collisions
 from .hair_color import sample_colors
 from .hair_fields import (face_zone, fringe_weights, hairline_angles, length_map,
