@@ -9,26 +9,25 @@ from pathlib import Path
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def nonneg_float(text: str) -> float:
-    """A finite number >= 0."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
-    if not v >= 0.0 or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text}")
-    return v
+def bounded_float(lo: float, hi: float | None = None):
+    """A finite number in [lo, hi] (``hi`` None: no upper bound)."""
+    want = f"a finite number >= {lo:g}" if hi is None else f"a number in [{lo:g}, {hi:g}]"
+
+    def check(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
+        if not (lo <= v < float("inf") and (hi is None or v <= hi)):
+            raise argparse.ArgumentTypeError(f"expected {want}, got {text}")
+        return v
+    return check
 
 
-def unit_float(text: str) -> float:
-    """A number in [0, 1]."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
-    if not 0.0 <= v <= 1.0:
-        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text}")
-    return v
+nonneg_float = bounded_float(0.0)
+"""A finite number >= 0."""
+unit_float = bounded_float(0.0, 1.0)
+"""A number in [0, 1]."""
 
 
 def device(text: str) -> str:
