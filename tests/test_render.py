@@ -78,6 +78,22 @@ def test_empty_scene_renders_empty(backend):
         assert out.visibility.shape == (1, pts.shape[1], 3 if pts.shape[2] == 4 else 5)
 
 
+def test_empty_batches_render_and_differentiate(backend):
+    """No frames, or frames without strands: empty / blank images and a gradient of the right shape
+    (the torch backend had failed on both: reshapes with -1, and an in-place edit of an empty view)."""
+    for B, N in ((0, 3), (2, 0), (0, 0)):
+        K, E = simple_camera(batch=B)
+        pts = torch.zeros(B, N, 5, 3, dtype=DT, requires_grad=True)
+        for opacity in (None, 0.3):
+            out = render_strands(pts, K, E, 24, 20, backend=backend, silhouette_opacity=opacity)
+            assert out.silhouette.shape == out.depth.shape == out.mask.shape == (B, 20, 24)
+            assert out.direction.shape == (B, 20, 24, 2) and out.visibility.shape == (B, N, 4)
+            assert float(out.silhouette.abs().sum() + out.depth.abs().sum()) == 0.0
+            (out.silhouette.sum() + out.depth.sum() + out.direction.sum()).backward()
+            assert pts.grad.shape == pts.shape
+            pts.grad = None
+
+
 def test_horizontal_strand_is_thin_line_of_direction_zero(backend):
     K, E = simple_camera(33)
     pts = line([-0.02, 0.0, 0.5], [0.02, 0.0, 0.5], 9)[None, None]  # along x, through the optical axis

@@ -81,8 +81,9 @@ def _chunks(nt: int, cols: int, rows: int, chunk: int):
 
 
 def _expand(x: Tensor, cols: int) -> Tensor:
-    """[n] tile values -> [n * cols] column values."""
-    return x[:, None].expand(x.shape[0], cols).reshape(-1)
+    """[n] tile values -> [n * cols] column values (a new tensor, which the callers modify in place;
+    reshaping an expanded view copies it, except when it is empty)."""
+    return x.repeat_interleave(cols)
 
 
 class Columns(NamedTuple):

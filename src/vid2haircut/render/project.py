@@ -7,6 +7,8 @@ extrinsics ``world_2_cam[b]``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -33,6 +35,11 @@ def _cameras_ok(K: Tensor, world_2_cam: Tensor) -> bool:
 NUMPY_FLOATS = (torch.float32, torch.float64)
 
 
+def _flat(points: Tensor) -> Tensor:
+    """[B, ..., 3] -> [B, n, 3] (``reshape(B, -1, 3)`` cannot size an empty batch)."""
+    return points.reshape(points.shape[0], math.prod(points.shape[1:-1]), 3)
+
+
 def to_camera(points: Tensor, world_2_cam: Tensor) -> Tensor:
     """World points -> camera-frame points.
 
@@ -43,8 +50,7 @@ def to_camera(points: Tensor, world_2_cam: Tensor) -> Tensor:
     Returns:
         [B, ..., 3] camera coordinates (z = depth along the optical axis).
     """
-    B = points.shape[0]
-    flat = points.reshape(B, -1, 3)
+    flat = _flat(points)
     rot = world_2_cam[:, :3, :3]
     trans = world_2_cam[:, :3, 3]
     cam = torch.einsum("bij,bnj->bni", rot, flat) + trans[:, None, :]
@@ -53,8 +59,7 @@ def to_camera(points: Tensor, world_2_cam: Tensor) -> Tensor:
 
 def rotate_to_camera(vectors: Tensor, world_2_cam: Tensor) -> Tensor:
     """World direction vectors [B, ..., 3] -> camera-frame vectors [B, ..., 3] (rotation only)."""
-    B = vectors.shape[0]
-    flat = vectors.reshape(B, -1, 3)
+    flat = _flat(vectors)
     cam = torch.einsum("bij,bnj->bni", world_2_cam[:, :3, :3], flat)
     return cam.reshape(vectors.shape)
 
@@ -71,8 +76,7 @@ def project_camera_points(cam: Tensor, K: Tensor, near: float = 1e-3) -> tuple[T
         uv: [B, ..., 2] pixel coordinates (x = column, y = row).
         z: [B, ..., ] camera depth.
     """
-    B = cam.shape[0]
-    flat = cam.reshape(B, -1, 3)
+    flat = _flat(cam)
     z = flat[..., 2]
     zs = z.clamp_min(near)
     xy = flat[..., :2] / zs[..., None]

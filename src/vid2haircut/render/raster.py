@@ -115,7 +115,7 @@ def composite(
     cols = fp.cols
     layout = Layout(fp.u.to(dt), fp.vstart.to(dt), fp.colbase, fp.vstride)
     sums, vis_tile = _Composite.apply(*tiles, layout, fp.rows, cols, head, border, npix, consts)
-    sums = sums.reshape(batch, height + 2 * pad, width + 2 * pad, -1)[:, pad:-pad, pad:-pad]
+    sums = sums.reshape(batch, height + 2 * pad, width + 2 * pad, sums.shape[-1])[:, pad:-pad, pad:-pad]
     log_t = sums[..., 0]
     weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
     visible = torch.zeros(G, dtype=torch.bool, device=dev)
