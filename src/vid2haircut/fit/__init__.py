@@ -11,14 +11,25 @@
   constrained texels slowly; :mod:`.stage1`, :mod:`.stage2`: the models.
 - :mod:`.outputs`: artifacts; :mod:`.pipeline`: file-level ``run_stage1`` / ``run_stage2``;
   :mod:`.toy`: a tiny known problem for tests.
+
+The configs and settings import without torch (the workflow checks a config with them when
+Snakemake reads it); the fitting names below are imported on first use.
 """
+
+import importlib as _importlib
 
 from vid2haircut.fit.components import LossWeights, RenderSettings, Switches
 from vid2haircut.fit.config import Stage1Config, Stage2Config
 from vid2haircut.fit.settings import apply_overrides
-from vid2haircut.fit.data import FitData, load_fit_data, make_fit_data
-from vid2haircut.fit.stage1 import FitResult, fit_stage1
-from vid2haircut.fit.stage2 import fit_stage2
+
+_LAZY = {"FitData": "data", "load_fit_data": "data", "make_fit_data": "data", "FitResult": "stage1",
+         "fit_stage1": "stage1", "fit_stage2": "stage2"}
 
 __all__ = ["LossWeights", "RenderSettings", "Stage1Config", "Stage2Config", "Switches", "apply_overrides",
-           "FitData", "load_fit_data", "make_fit_data", "FitResult", "fit_stage1", "fit_stage2"]
+           *_LAZY]
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(_importlib.import_module(f"vid2haircut.fit.{_LAZY[name]}"), name)
+    raise AttributeError(f"module 'vid2haircut.fit' has no attribute {name!r}")

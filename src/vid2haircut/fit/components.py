@@ -7,6 +7,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+# Choices of string settings, here (no torch) so that the workflow can check a config cheaply.
+DEPTH_ALIGNMENTS = ("quantile", "affine")
+"""How the depth term aligns a render's depth with the target's (:func:`vid2haircut.fit.image_terms.depth_loss`)."""
+SMOOTH_DIRECTION_FORMS = ("absolute", "relative", "change")
+"""What the direction smoothness penalises (:func:`vid2haircut.fit.losses.smoothness_losses`)."""
+HIDDEN_DIRECTION_SOURCES = ("render", "target")
+"""What :func:`vid2haircut.fit.scene.hidden_direction_term` aligns hidden segments with
+(``Stage2Config.hidden_direction_from``)."""
 
 # Dense-output decoding shared by both stages (vid2haircut.fit.outputs.dense_strands).
 LENGTH_SPREAD = 0.04

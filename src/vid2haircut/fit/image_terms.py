@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from vid2haircut.fit.components import DEPTH_ALIGNMENTS
 from vid2haircut.render.project import project_points
 
 __all__ = ["silhouette_loss", "direction_loss", "depth_loss", "quantile_normalize", "DEPTH_ALIGNMENTS",
@@ -66,9 +67,6 @@ def quantile_normalize(depth: Tensor, region: Tensor, q: tuple[float, float] = (
     vals = depth[region]
     qs = torch.quantile(vals, torch.tensor(q, dtype=depth.dtype, device=depth.device))
     return (depth - qs[0]) / (qs[1] - qs[0]).clamp_min(1e-6)
-
-
-DEPTH_ALIGNMENTS = ("quantile", "affine")
 
 
 def depth_loss(pred_depth: Tensor, pred_mask: Tensor, target_depth: Tensor, target_valid: Tensor,

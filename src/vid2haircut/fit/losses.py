@@ -26,6 +26,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from vid2haircut.fit.components import SMOOTH_DIRECTION_FORMS
+
 __all__ = ["penetration_loss", "TexelGraph", "texel_graph", "smoothness_losses", "SMOOTH_DIRECTION_FORMS", "unit_directions", "tip_height_loss", "robust",
            "pca_consistency_loss", "motion_loss", "anchor_loss", "bend_loss", "gravity_loss"]
 
@@ -81,10 +83,6 @@ def robust(x: Tensor, scale: float) -> Tensor:
     if scale <= 0.0:
         return x
     return scale * x / (x + scale)
-
-
-SMOOTH_DIRECTION_FORMS = ("absolute", "relative", "change")
-"""What the direction smoothness penalises (:func:`smoothness_losses`)."""
 
 
 def unit_directions(points: Tensor) -> Tensor:

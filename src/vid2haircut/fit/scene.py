@@ -13,7 +13,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from vid2haircut.fit.components import RenderSettings
+from vid2haircut.fit.components import HIDDEN_DIRECTION_SOURCES, RenderSettings
 from vid2haircut.fit.data import FitData
 from vid2haircut.fit.image_terms import (depth_loss, direction_loss, hidden_direction_loss, outside_loss,
                                          silhouette_loss)
@@ -128,10 +128,6 @@ def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: 
             "direction": direction_loss(out.direction, out.mask.detach(), data.direction[fr], weight),
             "depth": depth_loss(pred_depth, pred_mask, data.depth[fr], data.depth_valid[fr], align=depth_align,
                                 quantile_mask=hair)}
-
-
-HIDDEN_DIRECTION_SOURCES = ("render", "target")
-"""What :func:`hidden_direction_term` aligns hidden segments with (``Stage2Config.hidden_direction_from``)."""
 
 
 def hidden_direction_term(drawn: Tensor, moved: Tensor, hidden: Tensor, out: StrandRender, data: FitData,

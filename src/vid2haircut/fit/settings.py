@@ -12,10 +12,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from vid2haircut.fit.components import LossWeights
-from vid2haircut.fit.image_terms import DEPTH_ALIGNMENTS
-from vid2haircut.fit.losses import SMOOTH_DIRECTION_FORMS
-from vid2haircut.fit.scene import HIDDEN_DIRECTION_SOURCES
+from vid2haircut.fit.components import DEPTH_ALIGNMENTS, HIDDEN_DIRECTION_SOURCES, SMOOTH_DIRECTION_FORMS, LossWeights
 
 __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 

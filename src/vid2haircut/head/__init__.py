@@ -8,12 +8,18 @@
 
 from __future__ import annotations
 
+import importlib as _importlib
+from typing import TYPE_CHECKING
+
 from vid2haircut.head.landmarks import LANDMARK_GROUPS
-from vid2haircut.head.model import HeadModel
 from vid2haircut.head.scalp import dirs_to_uv, hairline_theta, texel_uv, uv_to_dirs
-from vid2haircut.head.sdf import SDFGrid, sdf_lookup, sdf_lookup_np
 
 HEAD_NAMES = ("proxy-v1",)
+# imported on first use (they need torch; the workflow's config check reads HEAD_NAMES without it)
+_LAZY = {"HeadModel": "model", "SDFGrid": "sdf", "sdf_lookup": "sdf", "sdf_lookup_np": "sdf",
+         "load_flame": "flame", "FlameModel": "flame", "export_head": "export"}
+if TYPE_CHECKING:
+    from vid2haircut.head.model import HeadModel
 
 __all__ = ["get_head", "HeadModel", "SDFGrid", "LANDMARK_GROUPS", "HEAD_NAMES", "sdf_lookup",
            "sdf_lookup_np", "uv_to_dirs", "dirs_to_uv", "texel_uv", "hairline_theta",
@@ -38,12 +44,6 @@ def get_head(name: str = "proxy-v1", scale: float = 1.0, width: float = 1.0, dep
 
 
 def __getattr__(name: str):
-    if name in ("load_flame", "FlameModel"):
-        from vid2haircut.head import flame
-
-        return getattr(flame, name)
-    if name == "export_head":
-        from vid2haircut.head.export import export_head
-
-        return export_head
+    if name in _LAZY:
+        return getattr(_importlib.import_module(f"vid2haircut.head.{_LAZY[name]}"), name)
     raise AttributeError(f"module 'vid2haircut.head' has no attribute {name!r}")
