@@ -10,7 +10,8 @@ the ceiling is a single-core figure.
 
 Usage:
     python benchmarks/render_bench.py [--quick] [--breakdown] [--device cpu|cuda] [--threads N] [--frames B]
-                                      [--backend auto|numba|torch] [--repeat N] [--rounds R]
+                                      [--backend auto|numba|torch] [--compositing bins|exact] [--repeat N]
+                                      [--rounds R]
 
 On a machine whose speed drifts (shared VMs: the same call measured 59 ms, then 100+ ms, within
 minutes), one series of ``--repeat`` runs can fall wholly in a slow moment, and a ratio of a quiet
@@ -100,12 +101,13 @@ def best_ms(fn, device: str, repeat: int) -> float:
     return best * 1e3
 
 
-def forward_backward(pts, K, E, hd, size: int, backend: str = "auto", render=render_strands):
+def forward_backward(pts, K, E, hd, size: int, backend: str = "auto", render=render_strands, **options):
     """One forward+backward of a scene from :func:`setup` (``pts`` requiring gradients), with the
     benchmark's loss: silhouette + normalised depth + direction, each summed. ``render``: the
-    ``render_strands`` to call (render_ab.py passes another commit's). Returns (the render, d loss /
-    d points); ``pts.grad`` is left None."""
-    out = render(pts, K, E, size, size, head_depth=hd, backend=backend)
+    ``render_strands`` to call (render_ab.py passes another commit's); ``options``: its further
+    keyword arguments (``compositing``). Returns (the render, d loss / d points); ``pts.grad`` is
+    left None."""
+    out = render(pts, K, E, size, size, head_depth=hd, backend=backend, **options)
     (out.silhouette.sum() + out.depth_normalized.sum() + out.direction.sum()).backward()
     grad, pts.grad = pts.grad, None
     return out, grad
@@ -129,16 +131,17 @@ def scene_call(args: argparse.Namespace):
     return lambda: forward_backward(pts, K, E, hd, args.size, "numba")
 
 
-def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto") -> dict:
+def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto",
+               compositing: str = "bins") -> dict:
     pts, K, E, hd = setup(n_strands, size, frames, device)
     pts.requires_grad_(True)
 
     def fwd():
         with torch.no_grad():
-            render_strands(pts, K, E, size, size, head_depth=hd, backend=backend)
+            render_strands(pts, K, E, size, size, head_depth=hd, backend=backend, compositing=compositing)
 
     def fwd_bwd():
-        forward_backward(pts, K, E, hd, size, backend)
+        forward_backward(pts, K, E, hd, size, backend, compositing=compositing)
 
     with torch.no_grad():
         g = segment_gaussians(pts, K, E)
@@ -212,6 +215,8 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=1, help="frames per call (times are per frame)")
     ap.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
                     help="compositing kernels (auto: numba on CPU when installed, else torch)")
+    ap.add_argument("--compositing", default="bins", choices=["bins", "exact"],
+                    help="the renderer's compositing model (exact: front to back with early termination, numba)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per case (the best is printed)")
     ap.add_argument("--rounds", type=int, default=1,
                     help="run every case this many times in turn and print each column's best (drifting machines)")
@@ -224,12 +229,12 @@ def main(argv=None) -> int:
     repeat = args.repeat
     backend = resolve_backend(args.backend, torch.zeros(1, device=args.device))
     print(f"device: {args.device}; {machine_summary(machine_info(args.device))}; "
-          f"backend: {backend}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
+          f"backend: {backend}; compositing: {args.compositing}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
           f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     header = ("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
               "| fwd+bwd / scatter |\n|---|---|---|---|---|---|---|---|")
     if args.rounds > 1:
-        runs = [[bench_case(n, s, args.device, repeat, args.frames, backend) for n, s in cases]
+        runs = [[bench_case(n, s, args.device, repeat, args.frames, backend, args.compositing) for n, s in cases]
                 for _ in range(args.rounds)]
         print(f"best of {args.rounds} rounds of {repeat} runs per column; the rounds' ranges in brackets\n")
         print(header)
@@ -238,7 +243,8 @@ def main(argv=None) -> int:
     else:  # each row as soon as its case is done
         print(header)
         for n, s in cases:
-            print(table_row(n, s, [bench_case(n, s, args.device, repeat, args.frames, backend)]), flush=True)
+            print(table_row(n, s, [bench_case(n, s, args.device, repeat, args.frames, backend, args.compositing)]),
+                  flush=True)
     if args.breakdown:
         breakdown(4000, 256, args.device, repeat, backend)
     return 0

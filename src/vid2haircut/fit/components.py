@@ -12,6 +12,8 @@ DEPTH_ALIGNMENTS = ("quantile", "affine")
 """How the depth term aligns a render's depth with the target's (:func:`vid2haircut.fit.image_terms.depth_loss`)."""
 SMOOTH_DIRECTION_FORMS = ("absolute", "relative", "change")
 """What the direction smoothness penalises (:func:`vid2haircut.fit.losses.smoothness_losses`)."""
+COMPOSITINGS = ("bins", "exact")
+"""The renderer's compositing models (:func:`vid2haircut.render.render_strands`, ``compositing``)."""
 HIDDEN_DIRECTION_SOURCES = ("render", "target")
 """What :func:`vid2haircut.fit.scene.hidden_direction_term` aligns hidden segments with
 (``Stage2Config.hidden_direction_from``)."""
@@ -139,6 +141,12 @@ class RenderSettings:
     """Depth-compositing bins of the renderer."""
     depth_bin: float = 0.002
     """Depth-bin size of the renderer, metres."""
+    compositing: str = "bins"
+    """The renderer's compositing model: "bins" (depth-binned; every figure of the README's Quality
+    section) or "exact" (front to back in depth order, each pixel stopping once its transmittance
+    falls below ``t_min``; CPU only, numba backend; not measured in the Quality section)."""
+    t_min: float = 1e-4
+    """Transmittance at which a pixel stops compositing with ``compositing: exact``."""
     vis_weight: float = 0.3
     """A guide segment counts as visible in a keyframe when its compositing weight reaches this at
     some pixel (drives the visibility-aware updates and the observed-texel test). Measured with

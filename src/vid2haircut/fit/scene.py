@@ -99,7 +99,7 @@ def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: Rende
     return render_strands(points, data.K[fr], data.cam_from_head[fr], data.width, data.height,
                           strand_width=settings.strand_width, head_depth=head_depth, bins=settings.bins,
                           depth_bin=settings.depth_bin, vis_weight=settings.vis_weight, shading=shading,
-                          silhouette_opacity=translucent)
+                          silhouette_opacity=translucent, compositing=settings.compositing, t_min=settings.t_min)
 
 
 def image_losses(out: StrandRender, data: FitData, frames: Tensor, depth_align: str = "quantile",

@@ -12,7 +12,8 @@ import math
 from pathlib import Path
 from typing import Any
 
-from vid2haircut.fit.components import DEPTH_ALIGNMENTS, HIDDEN_DIRECTION_SOURCES, SMOOTH_DIRECTION_FORMS, LossWeights
+from vid2haircut.fit.components import (COMPOSITINGS, DEPTH_ALIGNMENTS, HIDDEN_DIRECTION_SOURCES, SMOOTH_DIRECTION_FORMS,
+                                        LossWeights)
 
 __all__ = ["apply_overrides", "load_settings", "config_to_dict"]
 
@@ -38,11 +39,11 @@ _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve
            "silhouette_opacity": (math.nextafter(math.exp(-4.5), 1.0), math.nextafter(1.0, 2.0)),
            "dense_silhouette_opacity": (math.nextafter(math.exp(-4.5), 1.0), math.nextafter(1.0, 2.0)),
            "vis_weight": (1e-9, math.nextafter(1.0, 2.0)), "dense_vis_weight": (1e-9, math.nextafter(1.0, 2.0)),
-           "max_offset": (0.0, math.inf), "code_init_std": (0.0, math.inf)}
+           "max_offset": (0.0, math.inf), "code_init_std": (0.0, math.inf), "t_min": (1e-12, 1.0)}
 # Every loss weight (``weights.*``) lies in [0, inf): a negative weight would reward the term.
 # Settings that name one of a few modes, checked the same way.
 _CHOICES = {"depth_align": DEPTH_ALIGNMENTS, "smooth_direction_form": SMOOTH_DIRECTION_FORMS,
-            "hidden_direction_from": HIDDEN_DIRECTION_SOURCES}
+            "hidden_direction_from": HIDDEN_DIRECTION_SOURCES, "compositing": COMPOSITINGS}
 
 
 def _set(obj: Any, path: list[str], value: Any, full: str) -> None:

@@ -50,6 +50,8 @@ from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
 MAX_SIDE = 16384
 """Largest image side :func:`render_strands` accepts (beyond it the tile and pixel counts of a
 batch outgrow the kernels' index types)."""
+COMPOSITINGS = ("bins", "exact")
+"""Compositing models of :func:`render_strands`."""
 MAX_BINS = 1024
 """Most depth bins :func:`render_strands` accepts (the per-tile bin tables are bins x pixels)."""
 
@@ -77,6 +79,8 @@ def render_strands(
     shading: bool = True,
     backend: str = "auto",
     silhouette_opacity: float | None = None,
+    compositing: str = "bins",
+    t_min: float = 1e-4,
 ) -> StrandRender:
     """Render strands as strand-aligned Gaussians to silhouette, direction and depth maps.
 
@@ -112,6 +116,10 @@ def render_strands(
             direction and visibility stay those at ``opacity``: the same as replacing the
             silhouette by that of a second, silhouette-only render at this opacity. The numba
             backend composites both from one window walk when it is below ``opacity``.
+        compositing: "bins" (default: the depth-binned model, :mod:`vid2haircut.render.raster`) or
+            "exact" (front to back in each Gaussian's depth order, each pixel stopping once its
+            transmittance falls below ``t_min``; numba backend only, :mod:`.numba_exact`).
+        t_min: the transmittance at which a pixel stops compositing with ``compositing="exact"``.
 
     Returns:
         :class:`StrandRender` (see its field docs for shapes and empty-pixel values).
@@ -140,9 +148,16 @@ def render_strands(
         raise ValueError(f"vis_weight must be > 0, got {vis_weight}")
     if silhouette_opacity is not None and not alpha_min < silhouette_opacity <= 1.0:
         raise ValueError(f"silhouette_opacity must be in (alpha_min, 1] = ({alpha_min}, 1], got {silhouette_opacity}")
+    if compositing not in COMPOSITINGS:
+        raise ValueError(f"compositing must be one of {COMPOSITINGS}, got {compositing!r}")
+    if compositing == "exact" and not 0.0 < t_min < 1.0:
+        raise ValueError(f"t_min must be in (0, 1), got {t_min}")
     points = torch.as_tensor(points)
     check_points(points)
     use_numba = resolve_backend(backend, points) == "numba"
+    if compositing == "exact" and not use_numba:
+        raise ValueError("compositing='exact' needs the numba backend (CPU float32 / float64 points, numba installed)")
+    exact_t_min = t_min if compositing == "exact" else None
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     if points.device.type == "cpu":
         tune_cpu_allocator()  # see vid2haircut.render.allocator
@@ -176,7 +191,8 @@ def render_strands(
     flat = (g.means.reshape(G, 2), g.covs.reshape(G, 3), g.depths.reshape(G), g.dirs.reshape(G, 2))
     power_min = math.log(alpha_min) - log_op
     # a translucent silhouette below the opacity comes from the same walk in the numba backend
-    fused_second = use_numba and silhouette_opacity is not None and silhouette_opacity < opacity
+    fused_second = (use_numba and silhouette_opacity is not None and silhouette_opacity < opacity
+                    and exact_t_min is None)
     log_t2 = None
     if use_numba:
         torch_projection = table is None
@@ -185,7 +201,7 @@ def render_strands(
         ratio = silhouette_opacity / opacity if fused_second else 0.0
         sums, visible, log_t2 = composite_fused(table, flat[1], g.valid.reshape(G), frame, B, height, width, consts,
                                                 power_min, head_depth, torch_windows=torch_projection,
-                                                silhouette_ratio=ratio)
+                                                silhouette_ratio=ratio, t_min=exact_t_min)
     else:
         fp = build_footprint(flat[0], flat[1], g.valid.reshape(G), frame, height, width, power_min)
         sums, visible = composite(*flat, fp, B, height, width, consts, head_depth)
@@ -195,7 +211,8 @@ def render_strands(
     if silhouette_opacity is not None and silhouette_opacity != opacity:  # a second render
         second = render_strands(points, K, world_2_cam, width, height, strand_width, head_depth,
                                 opacity=silhouette_opacity, dilation=dilation, alpha_min=alpha_min,
-                                alpha_max=alpha_max, near=near, shading=False, backend=backend)
+                                alpha_max=alpha_max, near=near, shading=False, backend=backend,
+                                compositing=compositing, t_min=t_min)
         return out._replace(silhouette=second.silhouette)
     return out
 

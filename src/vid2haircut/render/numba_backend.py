@@ -94,7 +94,7 @@ class _Plan:
     """Everything the kernels need besides the differentiable Gaussian values (numpy arrays)."""
 
     def __init__(self, wint, wflt, frame, z, head, consts: KernelConsts, batch: int, height: int, width: int, dtype,
-                 ratio: float = 0.0):
+                 ratio: float = 0.0, t_min: float | None = None):
         import numba
 
         from vid2haircut.render import numba_tiles, numba_walk
@@ -116,6 +116,10 @@ class _Plan:
         self.nbins = int(consts.bins) if consts.shading else 1
         self.vis_weight = float(consts.vis_weight)
         self.shape = (batch, height, width)
+        self.exact = t_min is not None  # front to back (numba_exact), the Gaussians numbered by depth
+        self.t_min = float(t_min) if self.exact else 0.0
+        self.shade = bool(consts.shading)
+        self.order = None  # exact: [G] the Gaussians' depth order (numba_exact.depth_order)
         self.work_start, self.work_tiles = numba_tiles.assign_tiles(self.tile_start, numba.get_num_threads())
         # shapes of the kernels' four per-pixel outputs (sum l, sum w z, direction sums, sum l2) and
         # of their gradients; empty where the kernels neither write nor read them
@@ -192,6 +196,9 @@ class _FusedComposite(torch.autograd.Function):
     def forward(ctx, table, zs, plan):
         from vid2haircut.render import numba_kernels as nk
 
+        if plan.exact:
+            return _exact_forward(ctx, table, zs, plan)
+
         gpar = table.detach().contiguous().numpy()
         zs_np = zs.detach().contiguous().numpy()
         B, H, W = plan.shape
@@ -218,6 +225,8 @@ class _FusedComposite(torch.autograd.Function):
         from vid2haircut.render import numba_kernels as nk
 
         plan = ctx.plan
+        if plan.exact:
+            return _exact_backward(ctx, g_l, g_z, g_d)
         B, H, W = plan.shape
         g = tuple(np.zeros(shape) if t is None or shape[0] == 0 else t.detach().to(torch.float64).contiguous().numpy()
                   for t, shape in zip((g_l, g_z, g_d, g_2), plan.out_shapes))  # float64, as the kernel reads them
@@ -228,6 +237,59 @@ class _FusedComposite(torch.autograd.Function):
                                   plan.work_start, plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, acc)
             nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
         return torch.from_numpy(grads).to(ctx.dtype), None, None
+
+
+def _exact_forward(ctx, table, z, plan):
+    """:class:`_FusedComposite`'s forward with :mod:`.numba_exact` (``z``: the depths, not bin units)."""
+    from vid2haircut.render import numba_exact as ne
+
+    gpar = plan.gpar_sorted  # the table's rows in depth order
+    z_np = z.detach().contiguous().numpy()
+    B, H, W = plan.shape
+    dt = gpar.dtype
+    none = (0, 0, 0)
+    out = (np.zeros((B, H, W), dt), np.zeros((B, H, W) if plan.shade else none, dt),
+           np.zeros((B, H, W, 2) if plan.shade else none + (0,), dt))
+    sums = np.zeros((B, H, W, 3) if plan.shade else none + (0,))
+    cap = plan.capacity
+    elems = (np.empty(cap, np.int32), np.empty(cap, dt), np.empty(cap, dt))
+    e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
+    visible = np.zeros(gpar.shape[0], np.bool_)
+    with _LOCK:
+        ne.composite_exact_forward(gpar, z_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
+                                   plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
+                                   TILE, plan.offsets, elems, e_range, out, sums, plan.vis_weight, visible,
+                                   numba_simd.USE_LINE16 and TILE == 16, plan.t_min)
+    ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
+    vis = np.empty_like(visible)
+    with _LOCK:
+        ne.scatter_rows(visible, plan.order, vis)
+    visible_t = torch.from_numpy(vis)
+    ctx.mark_non_differentiable(visible_t)
+    ctx.set_materialize_grads(False)
+    empty = torch.zeros((0, 0, 0), dtype=table.dtype)
+    return (*(torch.from_numpy(o) for o in out), empty, visible_t)
+
+
+def _exact_backward(ctx, g_l, g_z, g_d):
+    """:class:`_FusedComposite`'s backward with :mod:`.numba_exact`."""
+    from vid2haircut.render import numba_exact as ne, numba_kernels as nk
+
+    plan = ctx.plan
+    B, H, W = plan.shape
+    shapes = ((B, H, W), (B, H, W) if plan.shade else (0, 0, 0), (B, H, W, 2) if plan.shade else (0, 0, 0, 0))
+    g = tuple(np.zeros(shape) if t is None or shape[0] == 0 else t.detach().to(torch.float64).contiguous().numpy()
+              for t, shape in zip((g_l, g_z, g_d), shapes))
+    acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
+    grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
+    with _LOCK:
+        ne.composite_exact_backward(ctx.gpar, plan.shade, plan.tile_start, plan.sorted_g, plan.work_start,
+                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc,
+                                    plan.t_min)
+        nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
+        out = np.empty_like(grads)
+        ne.scatter_rows(grads, plan.order, out)
+    return torch.from_numpy(out).to(ctx.dtype), None, None
 
 
 class _FusedChannels(torch.autograd.Function):
@@ -301,6 +363,7 @@ def composite_fused(
     head_depth: Tensor | None = None,  # [B, H, W]
     torch_windows: bool = False,
     silhouette_ratio: float = 0.0,
+    t_min: float | None = None,
 ) -> tuple[PixelSums, Tensor, Tensor | None]:
     """Composite G Gaussians (flattened over frames) into per-pixel sums with the fused CPU kernels.
 
@@ -319,8 +382,25 @@ def composite_fused(
     """
     from vid2haircut.render import numba_tiles
 
+    order = None
+    if t_min is not None:  # exact front-to-back compositing: the kernels see the Gaussians in depth order
+        from vid2haircut.render import numba_exact
+
+        if silhouette_ratio > 0.0:
+            raise ValueError("exact compositing draws no second silhouette in the same walk")
+        tab = table.detach().contiguous().numpy()
+        with _LOCK:
+            _numba_threads()
+            order = numba_exact.depth_order(tab[:, 5])
+            sorted_arrays = []
+            for a in (tab, covs.detach().contiguous().numpy(), valid.contiguous().numpy(),
+                      frame.to(torch.int64).contiguous().numpy()):
+                sorted_arrays.append(np.empty_like(a))
+                numba_exact.gather_rows(a, order, sorted_arrays[-1])
+        gpar_sorted = sorted_arrays[0]
+        covs, valid, frame = (torch.from_numpy(a) for a in sorted_arrays[1:])
     dt = table.dtype
-    means = table[:, 0:2].detach()
+    means = table[:, 0:2].detach() if order is None else torch.from_numpy(gpar_sorted[:, 0:2])
     if torch_windows:
         win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)
         wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
@@ -336,10 +416,12 @@ def composite_fused(
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
         head = head_depth.detach().to(dt).contiguous().numpy()
-    z = table[:, 5].detach().contiguous()
+    z = table[:, 5].detach().contiguous() if order is None else torch.from_numpy(np.ascontiguousarray(gpar_sorted[:, 5]))
     plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), z.numpy(), head, consts, batch, height,
-                 width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio)
-    zs = z * (1.0 / consts.depth_bin)  # bin units, rounded like the torch kernels
+                 width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio, t_min)
+    plan.order = order
+    plan.gpar_sorted = gpar_sorted if order is not None else None
+    zs = z * (1.0 / consts.depth_bin) if order is None else z  # bin units, rounded like the torch kernels
     log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)
     weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
     log_t2 = log_t2 if plan.second else None

@@ -1,0 +1,251 @@
+"""Exact front-to-back compositing with early termination (numba), ``compositing="exact"``.
+
+The alternative to the depth-binned model of :mod:`.numba_kernels`. The Gaussians reach these
+kernels numbered in depth order (:func:`vid2haircut.render.numba_backend.composite_fused` sorts
+them), so each tile's instance list (:mod:`.numba_tiles`, Gaussian order inside a tile) is its
+front-to-back order, and every pixel's contributions arrive sorted by their Gaussian's depth, as
+in the per-pixel reference (tests/render_reference.py). Per tile, forward
+(:func:`composite_exact_forward`): the windows are walked a few instances at a time
+(:func:`.numba_lines.walk_lines`, without z_ref), then each element (pixel p, alpha) in that
+order: w = alpha T(p), T(p) := T(p) (1 - alpha), the sums of w z, w cos2a, w sin2a at p, the
+largest w of its instance (visibility). A pixel stops compositing once T(p) < ``t_min`` (its
+later elements add less than t_min to every channel), and a tile stops walking once all its pixels
+have stopped. The log transmittance log T(p) is the silhouette's output.
+
+Backward (:func:`composite_exact_backward`), from the kept elements in the same order: with
+q = d loss / d w = g_z z + g_c cos2a + g_s sin2a at the element's pixel, Q(p) = sum of w q over
+the pixel (from the forward's float64 sums) and R = what the elements behind it add to it,
+d loss / d alpha = T q - (R + g_logT) / (1 - alpha); then d loss / d power = that times
+d alpha / d power (alpha, 0 where clamped), and the per-instance moments of
+:func:`.numba_kernels.composite_backward` (reduced by :func:`.numba_kernels.reduce_gradients`).
+The same T sequence is recomputed with the same operations, so the backward pass stops every pixel
+where the forward did.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from vid2haircut.render.numba_kernels import N_ACC, _pixel_xy, walk_scratch
+from vid2haircut.render.numba_lines import load_head, walk_lines
+from vid2haircut.render.numba_math import lane_cast, lane_exp
+from vid2haircut.render.numba_walk import C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_S, G_Z, tile_box
+
+_PAR = dict(cache=True, parallel=True, error_model="numpy")
+CHUNK = 8
+"""Instances walked before their elements are composited (and the tile's stop is checked)."""
+T_MIN = 1e-4
+"""Default transmittance below which a pixel stops compositing."""
+
+
+@njit(cache=True)
+def depth_order(z):
+    """[G] int64 permutation sorting the depths ``z`` (float32 or float64) in ascending order, ties
+    in index order (stable); NaN last. Two passes of a radix sort on 16-bit digits of the depth's
+    float32 bits (positive floats order as their bit patterns; negative depths, which are never
+    drawn, come first); one pass when every depth shares its high digit."""
+    G = z.shape[0]
+    key = np.empty(G, np.uint32)
+    for i in range(G):
+        v = np.float32(z[i])
+        if v != v:
+            key[i] = np.uint32(0xFFFFFFFF)
+        elif v < 0:
+            key[i] = np.uint32(0)
+        else:
+            key[i] = np.float32(v + np.float32(0.0)).view(np.uint32)  # + 0: -0.0 -> 0.0
+    order = np.arange(G)
+    tmp = np.empty(G, np.int64)
+    for shift in (0, 16):
+        cnt = np.zeros(65537, np.int64)
+        for i in range(G):
+            cnt[((key[i] >> shift) & 0xFFFF) + 1] += 1
+        if shift == 16 and cnt.max() == G:  # one high digit: already in order
+            break
+        for d in range(65536):
+            cnt[d + 1] += cnt[d]
+        for i in range(G):
+            j = order[i]
+            d = (key[j] >> shift) & 0xFFFF
+            tmp[cnt[d]] = j
+            cnt[d] += 1
+        order, tmp = tmp, order
+    return order
+
+
+@njit(cache=True, parallel=True)
+def gather_rows(src, order, dst):
+    """dst[i] = src[order[i]] for the rows of 1-D or 2-D arrays (in parallel)."""
+    for i in prange(order.shape[0]):
+        dst[i] = src[order[i]]
+
+
+@njit(cache=True, parallel=True)
+def scatter_rows(src, order, dst):
+    """dst[order[i]] = src[i]: the inverse of :func:`gather_rows` (``order`` a permutation)."""
+    for i in prange(order.shape[0]):
+        dst[order[i]] = src[i]
+
+
+@njit(cache=True, error_model="numpy", fastmath={"contract"})
+def alpha_and_slope(pw, hf, amin, amax):
+    """In place: power -> alpha = min(exp(power), alpha_max) if > alpha_min else 0, times the head
+    factor; head factor -> d alpha / d power (alpha; 0 where alpha is clamped to alpha_max).
+    Branch free, vectorised by LLVM in the arrays' dtype."""
+    if pw.shape[0] == 0:
+        return
+    lo, hi, zero = lane_cast(amin, pw[0]), lane_cast(amax, pw[0]), lane_cast(0.0, pw[0])
+    for i in range(pw.shape[0]):
+        al = min(lane_exp(pw[i]), hi)
+        al = (al if al > lo else zero) * hf[i]
+        pw[i] = al
+        hf[i] = al if al < hi else zero
+
+
+@njit(**_PAR)
+def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade, tile_start, sorted_g,
+                            work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, sums,
+                            vis_weight, visible, compress, t_min):
+    """Forward compositing of all tiles, front to back.
+
+    Args:
+        gpar, zs, wint, wflt, head, has_head, consts, tile_start, sorted_g, work_start, work_tiles,
+            width, height, tile, offsets, e_range, vis_weight, visible, compress: as for
+            :func:`.numba_kernels.composite_forward` (``consts``' second-silhouette ratio unused);
+            the Gaussians numbered front to back.
+        shade: composite depth and direction (else the log transmittance only).
+        elems: (pixel int32, alpha, d alpha / d power (input dtype)) element arrays, filled; the
+            instances a tile did not walk get empty ranges.
+        out: (log T [B, H, W], sum w z [B, H, W], (sum w cos2a, sum w sin2a) [B, H, W, 2]) zeros
+            in the input dtype, filled (the last two with ``shade`` only).
+        sums: [B, H, W, 3] float64, filled with the three sums unrounded (with ``shade``; the
+            backward pass's Q).
+        t_min: transmittance below which a pixel stops.
+    """
+    e_p, e_al, e_da = elems
+    o_l, o_z, o_d = out
+    L = tile
+    amin, amax = consts[C_AMIN], consts[C_AMAX]
+    for wk in prange(work_start.shape[0] - 1):
+        scratch = walk_scratch(L, zs)
+        hl, zref2, lane, pw, hf, vlo, vhi, km, pix = scratch
+        for j in range(work_start[wk], work_start[wk + 1]):
+            t = work_tiles[j]
+            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            load_head(head, has_head, b, x0, y0, width, height, L, hl)
+            tw = x1 - x0 + 1
+            npx = tw * (y1 - y0 + 1)
+            T = np.ones(npx)
+            acc = np.zeros((3, npx))
+            live = npx
+            n = offsets[t]
+            i0, i1 = tile_start[t], tile_start[t + 1]
+            k = i0
+            while k < i1:
+                if live == 0:  # every pixel has stopped: the rest of the tile is not walked
+                    for kk in range(k, i1):
+                        e_range[kk, 0] = n
+                        e_range[kk, 1] = n
+                    break
+                kb = min(k + CHUNK, i1)
+                m = walk_lines(k, kb, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, False,
+                               lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_da, n, e_range, compress)
+                alpha_and_slope(e_al[n:n + m], e_da[n:n + m], amin, amax)
+                for kk in range(k, kb):
+                    g = sorted_g[kk]
+                    z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
+                    mw = 0.0
+                    for e in range(np.uint64(e_range[kk, 0]), np.uint64(e_range[kk, 1])):
+                        p = np.uint64(e_p[e])
+                        tp = T[p]
+                        if tp >= t_min:
+                            a = e_al[e]
+                            w = a * tp
+                            tn = tp * (1.0 - a)
+                            T[p] = tn
+                            live -= tn < t_min
+                            if shade:
+                                acc[0, p] += w * z
+                                acc[1, p] += w * c
+                                acc[2, p] += w * s
+                                mw = max(mw, w)
+                    if mw >= vis_weight:
+                        visible[g] = True
+                n += m
+                k = kb
+            p = 0
+            for y in range(y0, y1 + 1):
+                for x in range(x0, x1 + 1):
+                    o_l[b, y, x] = np.log(T[p])
+                    if shade:
+                        o_z[b, y, x] = acc[0, p]
+                        o_d[b, y, x, 0] = acc[1, p]
+                        o_d[b, y, x, 1] = acc[2, p]
+                        sums[b, y, x, 0] = acc[0, p]
+                        sums[b, y, x, 1] = acc[1, p]
+                        sums[b, y, x, 2] = acc[2, p]
+                    p += 1
+
+
+@njit(**_PAR)
+def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work_tiles, width, height, tile, elems,
+                             e_range, grad, sums, acc, t_min):
+    """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`.
+
+    Args:
+        grad: the upstream gradients (log T, sum w z, direction sums) in float64 (the last two read
+            with ``shade`` only); sums: the forward's float64 sums; acc: [n_instances, 8] filled
+            (see :data:`.numba_kernels.N_ACC`); the rest as given to the forward kernel.
+    """
+    e_p, e_al, e_da = elems
+    g_l, g_z, g_d = grad
+    for wk in prange(work_start.shape[0] - 1):
+        for j in range(work_start[wk], work_start[wk + 1]):
+            t = work_tiles[j]
+            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            px, py = _pixel_xy(x0, x1, y0, y1)
+            npx = px.shape[0]
+            gl = np.zeros((4, npx))
+            Q = np.zeros(npx)  # what the elements not yet visited add to sum w q
+            for p in range(npx):
+                y, x = int(py[p]), int(px[p])
+                gl[0, p] = g_l[b, y, x]
+                if shade:
+                    gl[1, p] = g_z[b, y, x]
+                    gl[2, p] = g_d[b, y, x, 0]
+                    gl[3, p] = g_d[b, y, x, 1]
+                    Q[p] = gl[1, p] * sums[b, y, x, 0] + gl[2, p] * sums[b, y, x, 1] + gl[3, p] * sums[b, y, x, 2]
+            T = np.ones(npx)
+            for k in range(tile_start[t], tile_start[t + 1]):
+                g = sorted_g[k]
+                z, c, s = gpar[g, G_Z], gpar[g, G_C], gpar[g, G_S]
+                mx, my = gpar[g, G_MX], gpar[g, G_MY]
+                s0 = s1 = s2 = s3 = s4 = sz = sc = ss = 0.0
+                for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
+                    p = np.uint64(e_p[e])
+                    tp = T[p]
+                    if tp < t_min:
+                        continue
+                    a = e_al[e]
+                    om = 1.0 - a
+                    w = a * tp
+                    T[p] = tp * om
+                    q = gl[1, p] * z + gl[2, p] * c + gl[3, p] * s  # d loss / d w
+                    Q[p] -= w * q  # now: what the elements behind this one add
+                    gp = (tp * q - (Q[p] + gl[0, p]) / om) * e_da[e]
+                    if shade:
+                        sz += gl[1, p] * w
+                        sc += gl[2, p] * w
+                        ss += gl[3, p] * w
+                    dx, dy = px[p] - mx, py[p] - my
+                    s0 += gp * dx
+                    s1 += gp * dy
+                    s2 += gp * dx * dx
+                    s3 += gp * dx * dy
+                    s4 += gp * dy * dy
+                acc[k, 0], acc[k, 1], acc[k, 2], acc[k, 3], acc[k, 4] = s0, s1, s2, s3, s4
+                acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
+
+
+__all__ = ["depth_order", "gather_rows", "scatter_rows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
