@@ -262,8 +262,7 @@ def _exact_forward(ctx, table, z, plan):
                                    numba_simd.USE_LINE16 and TILE == 16, plan.t_min)
     ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
     vis = np.empty_like(visible)
-    with _LOCK:
-        ne.scatter_rows(visible, plan.order, vis)
+    vis[plan.order] = visible
     visible_t = torch.from_numpy(vis)
     ctx.mark_non_differentiable(visible_t)
     ctx.set_materialize_grads(False)
@@ -392,13 +391,11 @@ def composite_fused(
         with _LOCK:
             _numba_threads()
             order = numba_exact.depth_order(tab[:, 5])
-            sorted_arrays = []
-            for a in (tab, covs.detach().contiguous().numpy(), valid.contiguous().numpy(),
-                      frame.to(torch.int64).contiguous().numpy()):
-                sorted_arrays.append(np.empty_like(a))
-                numba_exact.gather_rows(a, order, sorted_arrays[-1])
-        gpar_sorted = sorted_arrays[0]
-        covs, valid, frame = (torch.from_numpy(a) for a in sorted_arrays[1:])
+            gpar_sorted, covs_sorted = np.empty_like(tab), np.empty((tab.shape[0], 3), tab.dtype)
+            numba_exact.gather_rows(tab, order, gpar_sorted)
+            numba_exact.gather_rows(covs.detach().contiguous().numpy(), order, covs_sorted)
+        covs = torch.from_numpy(covs_sorted)
+        valid, frame = (torch.from_numpy(a.contiguous().numpy()[order]) for a in (valid, frame.to(torch.int64)))
     dt = table.dtype
     means = table[:, 0:2].detach() if order is None else torch.from_numpy(gpar_sorted[:, 0:2])
     if torch_windows:

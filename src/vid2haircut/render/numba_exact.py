@@ -76,16 +76,20 @@ def depth_order(z):
 
 @njit(cache=True, parallel=True)
 def gather_rows(src, order, dst):
-    """dst[i] = src[order[i]] for the rows of 1-D or 2-D arrays (in parallel)."""
+    """dst[i] = src[order[i]] for the rows of 2-D arrays (in parallel)."""
     for i in prange(order.shape[0]):
-        dst[i] = src[order[i]]
+        j = order[i]
+        for c in range(src.shape[1]):
+            dst[i, c] = src[j, c]
 
 
 @njit(cache=True, parallel=True)
 def scatter_rows(src, order, dst):
-    """dst[order[i]] = src[i]: the inverse of :func:`gather_rows` (``order`` a permutation)."""
+    """dst[order[i]] = src[i] for the rows of 2-D arrays: the inverse of :func:`gather_rows`."""
     for i in prange(order.shape[0]):
-        dst[order[i]] = src[i]
+        j = order[i]
+        for c in range(src.shape[1]):
+            dst[j, c] = src[i, c]
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
