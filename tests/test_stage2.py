@@ -350,3 +350,18 @@ def test_bad_stage_files_and_outputs(toy, tmp_path, caplog):
     (s1 / "hairmap.npz").write_bytes((s1 / "hairmap.npz").read_bytes()[:500])
     with pytest.raises(ValueError, match=r"hairmap\.npz: not a hair map \.npz \(BadZipFile"):
         run_stage2(*common, s1, tmp_path / "s2b", settings=s2_settings, progress=False)
+
+
+def test_signature_leaves_out_the_default_compositing():
+    """A checkpoint made before ``render.compositing`` existed still resumes: with the default
+    (bins) neither it nor ``t_min`` enters the signature; the exact model gives another one."""
+    from types import SimpleNamespace
+
+    from vid2haircut.fit.config import Stage2Config
+    from vid2haircut.fit.pipeline import _signature
+
+    data = SimpleNamespace(frames=[0, 4], mask=torch.ones(2, 4, 4), cam_from_head=torch.eye(4).expand(2, 4, 4))
+    z, mask = torch.zeros(3, 2, 2), torch.ones(2, 2, dtype=torch.bool)
+    sig = _signature(Stage2Config(), data, z, mask)
+    assert _signature(apply_overrides(Stage2Config(), {"render": {"t_min": 1e-3}}), data, z, mask) == sig
+    assert _signature(apply_overrides(Stage2Config(), {"render": {"compositing": "exact"}}), data, z, mask) != sig
