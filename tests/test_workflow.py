@@ -152,6 +152,10 @@ def test_check_config_names_the_key(tmp_path):
         node[keys[-1]] = value
         with pytest.raises(ValueError, match=message):
             check_config(cfg)
+    cfg = _base_config(tmp_path)
+    cfg["device"], cfg["fit"]["stage2"] = "cuda", {"render": {"compositing": "exact"}}
+    with pytest.raises(ValueError, match=r"fit\.stage2: render\.compositing 'exact' runs on the CPU only"):
+        check_config(cfg)
     pkl = tmp_path / "flame.pkl"
     pkl.write_bytes(b"x")
     cfg = _base_config(tmp_path)

@@ -113,6 +113,12 @@ def schema_errors(config: dict, schema_path: str | Path) -> list[str]:
     return out
 
 
+def _check_compositing(cfg, device: str, where: str) -> None:
+    """The exact compositing model runs in the CPU (numba) kernels only."""
+    if cfg.render.compositing == "exact" and device != "cpu":
+        raise ValueError(f"config: {where}: render.compositing 'exact' runs on the CPU only (device is {device!r})")
+
+
 def check_config(config: dict) -> None:
     """Check a validated workflow config for what its schema cannot express.
 
@@ -132,9 +138,10 @@ def check_config(config: dict) -> None:
         raise ValueError(f"config: device: {dev!r} is not a device (cpu, cuda or cuda:N)")
     fit = config.get("fit", {})
     try:
-        apply_overrides(Stage1Config(), fit.get("stage1"))
+        cfg = apply_overrides(Stage1Config(), fit.get("stage1"))
     except ValueError as e:
         raise ValueError(f"config: fit.stage1: {e}") from None
+    _check_compositing(cfg, dev, "fit.stage1")
     variants = active_variants(config.get("variants", {"full": {}}))
     if not variants:
         raise ValueError("config: variants: every variant is set to false; at least one Stage 2 variant must run")
@@ -146,6 +153,7 @@ def check_config(config: dict) -> None:
             cfg = apply_overrides(Stage2Config(), merged)
         except ValueError as e:
             raise ValueError(f"config: {where}: {e}") from None
+        _check_compositing(cfg, dev, where)
         if "n_keyframes" in merged and cfg.n_keyframes > n_keyframes:  # (the default: every keyframe there is)
             raise ValueError(f"config: {where}: n_keyframes {cfg.n_keyframes} is more than the "
                              f"{n_keyframes} keyframes chosen (keyframes.n_keyframes)")

@@ -14,7 +14,9 @@ to float round-off (tests/test_render_backends.py checks values and gradients). 
 backend: the torch kernels need ~13 gather/scatter and ~55 elementwise passes over the
 (Gaussian, pixel) contributions; the fused kernels (:mod:`.numba_kernels`) composite one screen
 tile at a time in cache, walking the windows line by line with vector lanes
-(:mod:`.numba_lines`), ~3x less time for forward+backward (numbers in :mod:`.api`).
+(:mod:`.numba_lines`), ~3x less time for forward+backward (numbers in :mod:`.api`). With
+``t_min`` (``compositing="exact"``), :func:`composite_fused` hands the Gaussians to the kernels of
+:mod:`.numba_exact` in depth order instead (sorted here, gradients and visibility mapped back).
 
 Compilation: on first use, once per machine, ~21 s for the first dtype and ~13 s for the other
 (measured, 2 cores), then cached on disk (``cache=True``: ``__pycache__`` next to the modules,
@@ -373,7 +375,9 @@ def composite_fused(
     :func:`vid2haircut.render.footprint.gaussian_windows` (bit for bit its windows: for Gaussians
     projected by torch) instead of :func:`vid2haircut.render.numba_tiles.gaussian_windows`.
     ``silhouette_ratio`` in (0, 1): also composite a second silhouette at that fraction of the
-    opacity, from the same window walk (:func:`.numba_walk.alpha_and_l2`).
+    opacity, from the same window walk (:func:`.numba_walk.alpha_and_l2`). ``t_min``: composite
+    exactly front to back, each pixel stopping below this transmittance (:mod:`.numba_exact`;
+    without a second silhouette); None: the binned model.
 
     Returns:
         (:class:`PixelSums` with [B, H, W] fields, visible [G] bool, the second silhouette's
