@@ -10,7 +10,8 @@ round-off (tests/test_render.py: 1e-15 in float64, ~1e-6 in float32, values and 
 Accuracy against the exact per-pixel front-to-back reference (tests/render_reference.py) is
 documented in :mod:`vid2haircut.render.raster` and checked by tests/test_render.py. A second
 compositing model, exact front to back with early termination (``compositing="exact"``, numba
-backend only: :mod:`.numba_exact`), equals that reference to round-off and takes 0.56-0.87 of the
+backend only: :mod:`.numba_exact`), equals that reference to round-off where no pixel stops early
+(elsewhere the silhouette is within ``t_min``) and takes 0.56-0.87 of the
 binned model's time (README, Performance); the binned model stays the default (the fits' measured
 quality is the binned model's).
 
