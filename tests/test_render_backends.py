@@ -10,7 +10,7 @@ from vid2haircut.camera import look_at
 from vid2haircut.render import render_strands
 from vid2haircut.render.numba_backend import numba_available, resolve_backend
 
-from test_render import DT, orbit_camera, quad_depth, random_scene  # noqa: F401
+from render_scenes import DT, orbit_camera, quad_depth, random_scene  # noqa: F401
 
 
 def _backend_scene(dtype):
@@ -93,7 +93,7 @@ def test_fused_projection_matches_torch(dtype, p):
     float64 its gradient w.r.t. the points, for strands of p points (the kernels pad each strand's
     segments to whole vectors) with a strand of NaN and some drawn segments whose neighbours are not."""
     from vid2haircut.render.gaussians import segment_gaussians
-    from vid2haircut.render.numba_backend import gaussian_table, project_fused
+    from vid2haircut.render.numba_ops import gaussian_table, project_fused
 
     pts, K, E, w, h, _ = _backend_scene(dtype)
     B, N = pts.shape[:2]

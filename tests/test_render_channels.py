@@ -26,7 +26,7 @@ def _channel_sums(seed, dtype, shape=(2, 37, 41)):
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("terms", [("sil", "dn", "dir"), ("sil", "d", "dn", "dir"), ("dir",), ("dn",), ("sil", "dir")])
 def test_fused_channels_equal_torch_bit_for_bit(dtype, terms):
-    """numba_backend.channels_fused (the numba backend's depth, direction and mask) = api._finish's
+    """numba_ops.channels_fused (the numba backend's depth, direction and mask) = api._finish's
     torch operations: the channels and the gradients of a loss over any of them, byte for byte
     (the loss through silhouette, depth, normalised depth and direction in turn)."""
     from vid2haircut.render.api import _finish

@@ -15,7 +15,9 @@ from vid2haircut.render import render_strands
 from vid2haircut.render.numba_backend import numba_available
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import test_render as tr  # noqa: E402  (its scenes, cameras and physical tests)
+import render_scenes as tr  # noqa: E402  (the renderer tests' scenes and cameras)
+import test_render  # noqa: E402  (physical tests)
+import test_render_frames  # noqa: E402  (frames and shapes)
 from render_reference import reference_render  # noqa: E402
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="needs numba")
@@ -66,9 +68,11 @@ def test_exact_gradients_match_finite_differences(channel):
                                   "test_batch_of_frames_equals_single_frames_and_shapes_vary",
                                   "test_depth_normalized_in_unit_range_inside_mask", "test_near_plane_zero_renders"])
 def test_physical_tests_hold_for_exact(test, monkeypatch):
-    """The renderer's physical tests (tests/test_render.py), every render there made exact."""
-    monkeypatch.setattr(tr, "render_strands", functools.partial(render_strands, compositing="exact"))
-    getattr(tr, test)("numba")
+    """The renderer's physical and shape tests (tests/test_render.py, test_render_frames.py), every
+    render there made exact."""
+    module = test_render if hasattr(test_render, test) else test_render_frames
+    monkeypatch.setattr(module, "render_strands", functools.partial(render_strands, compositing="exact"))
+    getattr(module, test)("numba")
 
 
 def test_early_termination():

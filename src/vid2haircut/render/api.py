@@ -47,8 +47,8 @@ from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH, check_points, segment_gaussians
 from vid2haircut.render.kernels import KernelConsts
 from vid2haircut.render.project import NUMPY_FLOATS, check_cameras
-from vid2haircut.render.numba_backend import (channels_fused, composite_fused, gaussian_table, project_fused,
-                                              resolve_backend)
+from vid2haircut.render.numba_backend import composite_fused, resolve_backend
+from vid2haircut.render.numba_ops import channels_fused, gaussian_table, project_fused
 from vid2haircut.render.raster import composite
 from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
 

@@ -4,7 +4,7 @@ Choice: ``backend="auto"`` (the default) picks these kernels for CPU tensors of 
 float64 when numba imports, and the torch kernels (:mod:`.raster`, :mod:`.kernels`) otherwise
 (CUDA, other dtypes, numba missing); ``"torch"`` and ``"numba"`` force one. Both implement the
 same compositing model over the same kind of pixel windows (:func:`.footprint.gaussian_windows`).
-The numba backend projects the segments itself (:func:`project_fused`, :mod:`.numba_project`:
+The numba backend projects the segments itself (:func:`.numba_ops.project_fused`, :mod:`.numba_project`:
 one loop forward and one backward instead of ~40 torch operations and their autograd graph)
 and computes its windows itself (:func:`.numba_tiles.gaussian_windows`), unless K or
 world_2_cam require gradients: then it takes torch's Gaussians and torch's windows, bit for
@@ -45,7 +45,6 @@ from torch import Tensor
 
 from vid2haircut.render import numba_simd
 from vid2haircut.render.footprint import gaussian_windows
-from vid2haircut.render.gaussians import conics
 from vid2haircut.render.kernels import KernelConsts
 from vid2haircut.render.types import PixelSums
 
@@ -130,67 +129,12 @@ class _Plan:
                            img if self.second else none)
 
 
-def gaussian_table(means: Tensor, covs: Tensor, depths: Tensor, dirs: Tensor) -> Tensor:
-    """[G, 8] table (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a) of flattened Gaussians
-    (differentiable; the layout :func:`composite_fused` takes and :func:`project_fused` makes)."""
-    qxx, qxy, qyy = conics(covs)
-    return torch.stack([means[:, 0], means[:, 1], qxx, qxy, qyy, depths, dirs[:, 0], dirs[:, 1]], 1)
-
-
 def _numba_threads() -> None:
     """numba's thread count := ``min(torch.get_num_threads(), NUMBA_NUM_THREADS)`` (the kernels run
     as many threads as torch would)."""
     import numba
 
     numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
-
-
-class _FusedProject(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, points, K, world_2_cam, strand_width, dilation, near):
-        from vid2haircut.render import numba_project as npj
-
-        B, N, P = points.shape[:3]
-        G = B * N * (P - 1)
-        points = points.detach().contiguous()
-        K, world_2_cam = K.detach().to(points.dtype).contiguous(), world_2_cam.detach().to(points.dtype).contiguous()
-        gpar, covs = np.empty((G, 8), points.numpy().dtype), np.empty((G, 3), points.numpy().dtype)
-        valid = np.empty(G, np.bool_)
-        with _LOCK:
-            _numba_threads()
-            npj.project_forward(points.numpy(), K.numpy(), world_2_cam.numpy(), strand_width, dilation, near, gpar,
-                                covs, valid)
-        ctx.save_for_backward(points, K, world_2_cam)  # autograd's version check guards in-place edits
-        ctx.consts = (strand_width, dilation, near)
-        covs_t, valid_t = torch.from_numpy(covs), torch.from_numpy(valid)
-        ctx.mark_non_differentiable(covs_t, valid_t)
-        return torch.from_numpy(gpar), covs_t, valid_t
-
-    @staticmethod
-    def backward(ctx, grad, _g_covs, _g_valid):
-        from vid2haircut.render import numba_project as npj
-
-        pts, Kn, En = (t.numpy() for t in ctx.saved_tensors)
-        out = np.empty(pts.shape, pts.dtype)  # float64 sums, stored in the points' dtype
-        g = grad.detach().contiguous().numpy()
-        with _LOCK:
-            npj.project_backward(pts, Kn, En, *ctx.consts, g, out)
-        return torch.from_numpy(out).to(grad.dtype), None, None, None, None, None
-
-
-def project_fused(points: Tensor, K: Tensor, world_2_cam: Tensor, strand_width: float, dilation: float,
-                  near: float) -> tuple[Tensor, Tensor, Tensor]:
-    """The numba twin of :func:`vid2haircut.render.gaussians.segment_gaussians` + :func:`gaussian_table`.
-
-    Args:
-        points: [B, N, P, 3] CPU float32 / float64 world points; K [B, 3, 3], world_2_cam [B, 4, 4]
-            (no gradients reach them).
-
-    Returns:
-        (table [B * S, 8] differentiable w.r.t. ``points`` (see :func:`gaussian_table`), covs
-        [B * S, 3], valid [B * S] bool), S = N * (P - 1), segments strand-major per frame.
-    """
-    return _FusedProject.apply(points, K, world_2_cam, float(strand_width), float(dilation), float(near))
 
 
 class _FusedComposite(torch.autograd.Function):
@@ -289,66 +233,8 @@ def _exact_backward(ctx, g_l, g_z, g_d):
                                     plan.t_min)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
         out = np.empty_like(grads)
-        ne.scatter_rows(grads, plan.order, out)
+        ne.permute_rows(grads, plan.order, out, True)
     return torch.from_numpy(out).to(ctx.dtype), None, None
-
-
-class _FusedChannels(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, weight, wz, dirs):
-        from vid2haircut.render import numba_channels as nc
-
-        w, z, d = (t.detach().contiguous() for t in (weight, wz, dirs))
-        shape = w.shape
-        wn, zn, dn = w.numpy().reshape(-1), z.numpy().reshape(-1), d.numpy().reshape(-1, 2)
-        dt = wn.dtype
-        depth, direction, mask = np.empty_like(wn), np.empty_like(dn), np.empty(wn.shape, np.bool_)
-        consts = tuple(np.array(v, dt) for v in (1e-12, 1e-20, 0.5))
-        with _LOCK:
-            _numba_threads()
-            nc.channels_forward(wn, zn, dn, *consts, depth, direction, mask)
-        ctx.save_for_backward(w, z, d)
-        ctx.consts = consts[:2]
-        mask_t = torch.from_numpy(mask).reshape(shape)
-        ctx.mark_non_differentiable(mask_t)
-        ctx.set_materialize_grads(False)
-        return torch.from_numpy(depth).reshape(shape), torch.from_numpy(direction).reshape(*shape, 2), mask_t
-
-    @staticmethod
-    def backward(ctx, g_depth, g_dir, _g_mask):
-        from vid2haircut.render import numba_channels as nc
-
-        w, z, d = ctx.saved_tensors
-        wn, zn, dn = w.numpy().reshape(-1), z.numpy().reshape(-1), d.numpy().reshape(-1, 2)
-        with_depth, with_dir = g_depth is not None, g_dir is not None
-        gd = g_depth.detach().to(w.dtype).contiguous().numpy().reshape(-1) if with_depth else np.zeros(0, wn.dtype)
-        gv = g_dir.detach().to(w.dtype).contiguous().numpy().reshape(-1, 2) if with_dir else np.zeros((0, 2), wn.dtype)
-        g_w, g_wz = (np.empty_like(wn), np.empty_like(wn)) if with_depth else (np.zeros(0, wn.dtype),) * 2
-        g_dirs = np.empty_like(dn) if with_dir else np.zeros((0, 2), wn.dtype)
-        with _LOCK:
-            _numba_threads()
-            nc.channels_backward(wn, zn, dn, gd, gv, *ctx.consts, with_depth, with_dir, g_w, g_wz, g_dirs)
-        if not with_depth:
-            return None, None, (torch.from_numpy(g_dirs).reshape(d.shape) if with_dir else None)
-        return (torch.from_numpy(g_w).reshape(w.shape), torch.from_numpy(g_wz).reshape(w.shape),
-                torch.from_numpy(g_dirs).reshape(d.shape) if with_dir else None)
-
-
-def channels_fused(weight: Tensor, wz: Tensor, dirs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-    """The image channels of :func:`vid2haircut.render.api.render_strands` from the pixel sums, in one
-    numba pass forward and one backward (:mod:`.numba_channels`), bit for bit torch's.
-
-    Args:
-        weight, wz: [B, H, W] CPU float32 / float64 (1 - transmittance, sum w z); dirs: [B, H, W, 2].
-
-    Returns:
-        (depth [B, H, W], direction [B, H, W, 2], mask [B, H, W] bool), differentiable w.r.t. the
-        three inputs but the mask.
-    """
-    if wz.shape != weight.shape or dirs.shape != (*weight.shape, 2):  # the kernels index all three alike
-        raise ValueError(f"channels_fused: weight {tuple(weight.shape)}, wz {tuple(wz.shape)} and dirs "
-                         f"{tuple(dirs.shape)} must be [B, H, W], [B, H, W] and [B, H, W, 2]")
-    return _FusedChannels.apply(weight, wz, dirs)
 
 
 def composite_fused(
@@ -369,7 +255,7 @@ def composite_fused(
     """Composite G Gaussians (flattened over frames) into per-pixel sums with the fused CPU kernels.
 
     Same contract as :func:`vid2haircut.render.raster.composite`, but the Gaussians come as the
-    differentiable [G, 8] table of :func:`gaussian_table` (or :func:`project_fused`) and their
+    differentiable [G, 8] table of :func:`.numba_ops.gaussian_table` (or :func:`.numba_ops.project_fused`) and their
     covariances, and ``valid``, ``frame`` and ``power_min`` = log(alpha_min / opacity) replace the
     footprint. ``torch_windows``: take the pixel windows from the torch backend's
     :func:`vid2haircut.render.footprint.gaussian_windows` (bit for bit its windows: for Gaussians
@@ -396,8 +282,8 @@ def composite_fused(
             _numba_threads()
             order = numba_exact.depth_order(tab[:, 5])
             gpar_sorted, covs_sorted = np.empty_like(tab), np.empty((tab.shape[0], 3), tab.dtype)
-            numba_exact.gather_rows(tab, order, gpar_sorted)
-            numba_exact.gather_rows(covs.detach().contiguous().numpy(), order, covs_sorted)
+            numba_exact.permute_rows(tab, order, gpar_sorted, False)
+            numba_exact.permute_rows(covs.detach().contiguous().numpy(), order, covs_sorted, False)
         covs = torch.from_numpy(covs_sorted)
         valid, frame = (torch.from_numpy(a.contiguous().numpy()[order]) for a in (valid, frame.to(torch.int64)))
     dt = table.dtype

@@ -78,21 +78,15 @@ def depth_order(z):
 
 
 @njit(cache=True, parallel=True)
-def gather_rows(src, order, dst):
-    """dst[i] = src[order[i]] for the rows of 2-D arrays (in parallel)."""
+def permute_rows(src, order, dst, inverse):
+    """Rows of 2-D arrays, in parallel: dst[i] = src[order[i]], or with ``inverse`` dst[order[i]] =
+    src[i] (``order`` a permutation: the one undoes the other)."""
     for i in prange(order.shape[0]):
-        j = order[i]
+        ii, j = np.int64(i), np.int64(order[i])  # (one integer type: the prange index may be unsigned)
+        a = ii if inverse else j
+        b = j if inverse else ii
         for c in range(src.shape[1]):
-            dst[i, c] = src[j, c]
-
-
-@njit(cache=True, parallel=True)
-def scatter_rows(src, order, dst):
-    """dst[order[i]] = src[i] for the rows of 2-D arrays: the inverse of :func:`gather_rows`."""
-    for i in prange(order.shape[0]):
-        j = order[i]
-        for c in range(src.shape[1]):
-            dst[j, c] = src[i, c]
+            dst[b, c] = src[a, c]
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
@@ -255,4 +249,4 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                 acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
 
 
-__all__ = ["depth_order", "gather_rows", "scatter_rows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
+__all__ = ["depth_order", "permute_rows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]

@@ -268,7 +268,7 @@ def gaussian_windows(means, covs, valid, height, width, power_min, cols, max_row
 
     torch's float32 square root is not always correctly rounded (numba's is), so a window edge
     can differ by a pixel in rare cases: the numba backend uses these windows with its own
-    projection (:func:`vid2haircut.render.numba_backend.project_fused`), and torch's windows when
+    projection (:func:`vid2haircut.render.numba_ops.project_fused`), and torch's windows when
     it composites Gaussians projected by torch.
     """
     G = means.shape[0]
