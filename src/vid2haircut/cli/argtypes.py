@@ -4,24 +4,31 @@ work starts, with argparse's one-line usage error naming the option (exit status
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
 
-def bounded_float(lo: float, hi: float | None = None):
-    """A finite number in [lo, hi] (``hi`` None: no upper bound)."""
-    want = f"a finite number >= {lo:g}" if hi is None else f"a number in [{lo:g}, {hi:g}]"
+def _bounded(convert, noun: str, fmt, lo, hi):
+    """An argparse type: ``convert(text)`` (float or int) in [lo, hi], finite (``hi`` None: no upper
+    bound); the error names ``noun`` and the range."""
+    want = f"{noun} >= {fmt(lo)}" if hi is None else f"{noun} in [{fmt(lo)}, {fmt(hi)}]"
 
-    def check(text: str) -> float:
+    def check(text: str):
         try:
-            v = float(text)
+            v = convert(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
-        if not (lo <= v < float("inf") and (hi is None or v <= hi)):
-            raise argparse.ArgumentTypeError(f"expected {want}, got {text}")
+        if not (lo <= v and (v <= hi if hi is not None else v < math.inf)):  # NaN fails the first test
+            raise argparse.ArgumentTypeError(f"expected {want}, got {v if convert is int else text}")
         return v
     return check
+
+
+def bounded_float(lo: float, hi: float | None = None):
+    """A finite number in [lo, hi] (``hi`` None: no upper bound)."""
+    return _bounded(float, "a finite number" if hi is None else "a number", lambda x: f"{x:g}", lo, hi)
 
 
 nonneg_float = bounded_float(0.0)
@@ -59,17 +66,7 @@ def image_path(text: str) -> str:
 
 def bounded_int(lo: int, hi: int | None = None):
     """An integer in [lo, hi] (``hi`` None: no upper bound)."""
-    want = f"a whole number >= {lo}" if hi is None else f"a whole number in [{lo}, {hi}]"
-
-    def check(text: str) -> int:
-        try:
-            v = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"expected {want}, got {text!r}") from None
-        if v < lo or (hi is not None and v > hi):
-            raise argparse.ArgumentTypeError(f"expected {want}, got {v}")
-        return v
-    return check
+    return _bounded(int, "a whole number", str, lo, hi)
 
 
 nonneg_int = bounded_int(0)
