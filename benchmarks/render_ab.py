@@ -13,6 +13,7 @@ Both sides compile their numba kernels once (the base's into the temporary folde
 
     .venv/bin/python benchmarks/render_ab.py --base d326216 [--strands 4000] [--size 256] [--frames 1]
                                              [--threads N] [--rounds 3] [--repeat 15] [--kernels]
+                                             [--compositing bins|exact]
 """
 
 from __future__ import annotations
@@ -71,6 +72,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=15, help="calls of each per round (the best is printed)")
     ap.add_argument("--kernels", action="store_true", help="also print each numba kernel's best time per round")
+    ap.add_argument("--compositing", default="bins", choices=["bins", "exact"], help="the compositing model")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -81,8 +83,9 @@ def main(argv=None) -> int:
         present = importlib.import_module("vid2haircut.render").render_strands
         pts, K, E, hd = setup(args.strands, args.size, args.frames, "cpu")
         pts.requires_grad_(True)
-        call = {"base": lambda: forward_backward(pts, K, E, hd, args.size, "numba", base),
-                "present": lambda: forward_backward(pts, K, E, hd, args.size, "numba", present)}
+        opt = dict(compositing=args.compositing)
+        call = {"base": lambda: forward_backward(pts, K, E, hd, args.size, "numba", base, **opt),
+                "present": lambda: forward_backward(pts, K, E, hd, args.size, "numba", present, **opt)}
         (a, ga), (b, gb) = call["base"](), call["present"]()  # also compiles both
         print(f"{args.frames} x {args.strands} strands x 32 points at {args.size}x{args.size}, "
               f"{torch.get_num_threads()} threads; "

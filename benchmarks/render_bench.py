@@ -121,14 +121,15 @@ def add_scene_args(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--frames", type=int, default=1, help="frames per call (Stage 2 renders 6 keyframes in one)")
 
 
-def scene_call(args: argparse.Namespace):
+def scene_call(args: argparse.Namespace, **options):
     """Apply ``--threads`` and build the scene of ``args`` (:func:`add_scene_args`); returns a
-    no-argument function doing one numba-backend :func:`forward_backward` of it."""
+    no-argument function doing one numba-backend :func:`forward_backward` of it (``options``:
+    further ``render_strands`` arguments, ``compositing``)."""
     if args.threads:
         torch.set_num_threads(args.threads)
     pts, K, E, hd = setup(args.strands, args.size, args.frames, "cpu")
     pts.requires_grad_(True)
-    return lambda: forward_backward(pts, K, E, hd, args.size, "numba")
+    return lambda: forward_backward(pts, K, E, hd, args.size, "numba", **options)
 
 
 def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto",

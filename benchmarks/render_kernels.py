@@ -7,6 +7,7 @@ kernel, the best and the median milliseconds, and what is left of the whole call
 channels and loss, Python).
 
     .venv/bin/python benchmarks/render_kernels.py [--strands 4000] [--size 256] [--frames 1] [--calls 20] [--threads N]
+        [--compositing bins|exact]
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ KERNELS = {
     "numba_walk": ("tile_bounds",),
     "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
     "numba_channels": ("channels_forward", "channels_backward"),
+    "numba_exact": ("depth_order", "permute_rows", "instance_rows", "composite_exact_forward", "composite_exact_backward"),
 }
 
 
@@ -42,7 +44,9 @@ def timed_kernels(times: dict[str, float], package: str = "vid2haircut") -> list
     for mod_name, names in KERNELS.items():
         mod = importlib.import_module(f"{package}.render.{mod_name}")
         for name in names:
-            fn = getattr(mod, name)
+            fn = getattr(mod, name, None)
+            if fn is None:  # a kernel the other commit does not have
+                continue
 
             def wrapper(*a, _fn=fn, _name=name, **k):
                 t0 = time.perf_counter()
@@ -59,8 +63,9 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_scene_args(ap)
     ap.add_argument("--calls", type=int, default=20, help="timed forward+backward calls (after 3 warm-ups)")
+    ap.add_argument("--compositing", default="bins", choices=["bins", "exact"], help="the compositing model")
     args = ap.parse_args(argv)
-    call = scene_call(args)
+    call = scene_call(args, compositing=args.compositing)
     times: dict[str, float] = {}
     undo = timed_kernels(times)
     try:

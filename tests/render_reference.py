@@ -67,8 +67,10 @@ def reference_gaussians(points, K, world_2_cam, strand_width=3.5e-4, dilation=0.
 
 
 def reference_render(points, K, world_2_cam, width, height, strand_width=3.5e-4, head_depth=None,
-                     opacity=1.0, dilation=0.3, alpha_min=math.exp(-4.5), alpha_max=0.99) -> ReferenceRender:
-    """Exact front-to-back compositing of every Gaussian at every pixel centre."""
+                     opacity=1.0, dilation=0.3, alpha_min=math.exp(-4.5), alpha_max=0.99,
+                     t_min=0.0) -> ReferenceRender:
+    """Exact front-to-back compositing of every Gaussian at every pixel centre; ``t_min`` > 0: a
+    pixel stops once its transmittance is below it (the exact renderer's early termination)."""
     K = np.asarray(K, np.float64)
     world_2_cam = np.asarray(world_2_cam, np.float64)
     gauss = reference_gaussians(points, K, world_2_cam, strand_width, dilation)
@@ -91,6 +93,8 @@ def reference_render(points, K, world_2_cam, width, height, strand_width=3.5e-4,
                     alpha = np.where(zs < head_depth[b, row, col], alpha, 0.0)
                 trans, wsum, zsum, dsum = 1.0, 0.0, 0.0, np.zeros(2)
                 for i in order:
+                    if trans < t_min:
+                        break
                     wi = trans * alpha[i]
                     wsum += wi
                     zsum += wi * zs[i]

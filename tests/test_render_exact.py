@@ -102,6 +102,40 @@ def test_early_termination():
     assert float((f32.depth.double() - f64.depth)[f64.mask].abs().max()) < 1e-5
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_early_termination_matches_reference(seed):
+    """Dense hair over several tiles (one of them partial), t_min 0.05 so that many pixels stop:
+    every channel equals the per-pixel reference that stops a pixel below t_min, to round-off.
+    Checks the early stop, and that the instances and window lines skipped over stopped pixels
+    (numba_lines.walk_lines' live masks) held nothing to composite."""
+    size = 40
+    pts = tr.random_scene(seed, n=40, p=8, spread=0.012)
+    K, E = tr.orbit_camera(size)
+    ref = reference_render(pts, K, E, size, size, t_min=0.05)
+    out = exact(torch.tensor(pts), torch.tensor(K), torch.tensor(E), size, size, t_min=0.05)
+    assert (1.0 - ref.silhouette[0] < 0.05).sum() > 150  # pixels that stopped
+    m = ref.silhouette[0] > 0.5
+    assert np.abs(out.silhouette[0].numpy() - ref.silhouette[0]).max() < 1e-12
+    assert np.abs(out.depth[0].numpy() - ref.depth[0])[m].max() < 1e-12
+    assert np.abs(out.direction[0].numpy() - ref.direction[0]).sum(-1)[m].max() < 1e-8
+    clear = np.abs(ref.max_weight[0] - 0.3) > 1e-9
+    vis = out.visibility[0].reshape(-1).numpy()
+    assert np.array_equal(vis[clear], (ref.max_weight[0] >= 0.3)[clear])
+
+
+def test_instance_rows():
+    from vid2haircut.render.numba_exact import instance_rows
+
+    rng = np.random.default_rng(0)
+    gstart = np.array([0, 2, 2, 5, 6])  # 4 Gaussians, 6 instances (Gaussian 1 has none)
+    inst_pos = np.array([3, 0, 5, 1, 4, 2])
+    gpar, wint, wflt = rng.random((4, 8)), rng.integers(0, 9, (4, 4)), rng.random((4, 2)).astype(np.float32)
+    owner = np.empty(6, np.int64)
+    owner[inst_pos] = np.repeat(np.arange(4), np.diff(gstart))
+    for got, table in zip(instance_rows(gstart, inst_pos, gpar, wint, wflt), (gpar, wint, wflt)):
+        assert got.dtype == table.dtype and np.array_equal(got, table[owner])
+
+
 def test_translucent_silhouette_and_silhouette_only():
     """``silhouette_opacity`` with exact compositing is the silhouette of a second, silhouette-only
     exact render at that opacity; the silhouette-only render equals the shaded one's silhouette."""

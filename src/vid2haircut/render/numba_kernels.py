@@ -91,7 +91,7 @@ def walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, with_zre
     load_head(head, has_head, b, x0, y0, width, height, L, hl)
     off = offsets[t]
     n = walk_lines(tile_start[t], tile_start[t + 1], sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L,
-                   zref2, with_zref, lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress)
+                   zref2, with_zref, lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress, None)
     if consts[C_RATIO] > 0.0:
         alpha_and_l2(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX], consts[C_RATIO],
                      e_dl2[off:off + n], e_la2[off:off + n])

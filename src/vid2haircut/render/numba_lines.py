@@ -48,12 +48,14 @@ L_DU, L_QA, L_QB = range(3)
 
 
 @njit(**_INL)
-def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
+def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi, live):
     """Instance g in the tile: (lay, first line, last line, mean v - tile v0, q_vv, the lanes its
-    line needs: 0 (lanes 0-7), 8 (lanes 8-15) or -1 (both halves)); fills
+    line needs: 0 (lanes 0-7), 8 (lanes 8-15) or -1 (both halves), the bits of its lanes ua..ub
+    (uint32, bit i: lane i)); fills
     the lane arrays (``lane``, and vlo / vhi [L] int32: the window rows of each lane, tile
     relative; FAR / -FAR outside the window). Lines are tile relative; last < first when the
-    window misses the tile."""
+    window misses the tile, or when ``live`` (see :func:`walk_lines`) is given and the window's
+    box (its lines by its lanes) holds no live pixel: then the lane arrays are not filled."""
     hz = wint[g, W_HZ] != 0
     lay = 0 if hz else 1
     if hz:
@@ -69,10 +71,18 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
     sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
     mvr = mv - lane_cast(tv0, mv)
     if ub < ua:
-        return lay, 0, -1, mvr, qv, -1
+        return lay, 0, -1, mvr, qv, -1, np.uint32(0)
     va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
     lo = max(min(va, vb), tv0) - tv0
     hi = min(max(va, vb) + h - 1, tv1) - tv0
+    lanes0 = 0 if ub - tu0 < 8 else (8 if ua - tu0 >= 8 else -1)
+    umask = np.uint32(((1 << (ub - tu0 + 1)) - 1) ^ ((1 << (ua - tu0)) - 1))  # bits ua..ub, tile relative
+    if live is not None:
+        hit = np.uint32(0)
+        for r in range(lo, hi + 1):
+            hit |= live[lay, r]
+        if not hit & umask:
+            return lay, 0, -1, mvr, qv, -1, np.uint32(0)
     # the lanes in int32 (vstart32; sums wrap as the int32 stores of the int64 sums did): the same window
     # rows wherever they lie within +-2^30, in a loop that LLVM vectorises without AVX-512DQ's
     # float <-> int64 conversions
@@ -87,8 +97,7 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi):
         lane[L_DU, i] = d
         lane[L_QA, i] = qu * d * d
         lane[L_QB, i] = (qxy + qxy) * d
-    lanes0 = 0 if ub - tu0 < 8 else (8 if ua - tu0 >= 8 else -1)
-    return lay, lo, hi, mvr, qv, lanes0
+    return lay, lo, hi, mvr, qv, lanes0, umask
 
 
 @njit(**_INL)
@@ -105,7 +114,7 @@ def load_head(head, has_head, b, x0, y0, width, height, L, hl):
 
 @njit(**_INL)
 def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, with_zref,
-               lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress):
+               lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress, live):
     """Walk the windows of instances i0:i1 line by line: z_ref over the whole windows into both
     layouts of ``zref2`` [2 L L] (when ``with_zref``; filled with +inf first), and the candidate
     elements into e_*[off:off + n] (pixel, power, head factor), instance k's at
@@ -121,6 +130,12 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     ``compress``: evaluate each line with :func:`vid2haircut.render.numba_simd.line16` (explicit
     16-lane vector code packing the kept lanes with AVX-512 compress or AVX2 permutes; pass
     ``numba_simd.USE_LINE16``) instead of the loop over the lanes; the same elements either way.
+    ``live``: None (the binned model's walk), or (the exact model's, :mod:`.numba_exact`) [2, L]
+    uint32 bit masks of the tile's pixels still compositing in both layouts (live[0, y] bit x,
+    live[1, x] bit y; tile relative): an instance whose window box (its lines by its lanes
+    ua..ub) holds no live pixel is not walked (an empty range); the rows of ``wint``, ``wflt``,
+    ``gpar`` and ``zs`` are then the instances' own (row k for instance k, in tile order: read one
+    after the other, where the Gaussians' rows lie scattered) instead of their Gaussians'.
     """
     tw = x1 - x0 + 1
     cut = lane_cast(math.log(consts[1]) - 1e-3, zs[0])  # power > cut: inside the ellipse
@@ -130,22 +145,25 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     if with_zref:
         for p in range(2 * L * L):
             zref2[p] = np.inf
+    packed = live is not None
     n = off
     for k in range(i0, i1):
         e_range[k, 0] = n
-        if k + PREFETCH < i1:  # the rows of a later instance's Gaussian, fetched while this one is walked
+        if not packed and k + PREFETCH < i1:  # the rows of a later instance's Gaussian, fetched while this one is walked
             gn = sorted_g[k + PREFETCH]
             prefetch_row(gpar, gn)
             prefetch_row(wint, gn)
             prefetch_row(wflt, gn)
             prefetch_row(zs, gn)
-        g = sorted_g[k]
-        lay, lo, hi, mvr, qv, lanes0 = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi)
+        g = k if packed else sorted_g[k]
+        lay, lo, hi, mvr, qv, lanes0, umask = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi, live)
         z, zg = gpar[g, G_Z], zs[g]
         keep_any = qv > zero  # else degenerate: z_ref only
         # pixel index in the tile of lane i of line r: r * sr + i * si
         sr, si = (tw, 1) if lay == 0 else (1, tw)
         for r in range(lo, hi + 1):
+            if packed and not live[lay, r] & umask:  # no live pixel in the line's lanes
+                continue
             rr = np.int32(r)
             dv = lane_cast(r, mvr) - mvr
             base = np.uint64((lay * L + r) * L)
