@@ -77,6 +77,29 @@ def depth_order(z):
     return order
 
 
+@njit(cache=True, inline="always")
+def _copy_row(dst, b, src, a):
+    """dst[b] = src[a] for 2-D arrays of the same width. The widths of the renderer's tables get
+    loops of a literal length: LLVM turns a row loop of run-time length into a call of memcpy,
+    whose per-call cost was ~5% of a whole exact forward+backward (perf, AMD Zen 3)."""
+    n = src.shape[1]
+    if n == 8:
+        for c in range(8):
+            dst[b, c] = src[a, c]
+    elif n == 4:
+        for c in range(4):
+            dst[b, c] = src[a, c]
+    elif n == 3:
+        for c in range(3):
+            dst[b, c] = src[a, c]
+    elif n == 2:
+        for c in range(2):
+            dst[b, c] = src[a, c]
+    else:
+        for c in range(n):
+            dst[b, c] = src[a, c]
+
+
 @njit(cache=True, parallel=True)
 def permute_rows(src, order, dst, inverse):
     """Rows of 2-D arrays, in parallel: dst[i] = src[order[i]], or with ``inverse`` dst[order[i]] =
@@ -85,8 +108,7 @@ def permute_rows(src, order, dst, inverse):
         ii, j = np.int64(i), np.int64(order[i])  # (one integer type: the prange index may be unsigned)
         a = ii if inverse else j
         b = j if inverse else ii
-        for c in range(src.shape[1]):
-            dst[b, c] = src[a, c]
+        _copy_row(dst, b, src, a)
 
 
 @njit(cache=True, parallel=True)
@@ -104,12 +126,9 @@ def instance_rows(gstart, inst_pos, gpar, wint, wflt):
     for g in prange(gstart.shape[0] - 1):
         for j in range(gstart[g], gstart[g + 1]):
             k = inst_pos[j]
-            for c in range(gpar.shape[1]):
-                gi[k, c] = gpar[g, c]
-            for c in range(wint.shape[1]):
-                wi[k, c] = wint[g, c]
-            for c in range(wflt.shape[1]):
-                fi[k, c] = wflt[g, c]
+            _copy_row(gi, k, gpar, g)
+            _copy_row(wi, k, wint, g)
+            _copy_row(fi, k, wflt, g)
     return gi, wi, fi
 
 
