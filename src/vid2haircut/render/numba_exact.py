@@ -11,8 +11,14 @@ order: w = alpha T(p), T(p) := T(p) (1 - alpha), the sums of w z, w cos2a, w sin
 largest w of its instance (visibility). A pixel stops compositing once T(p) < ``t_min`` (its
 later elements together weigh less than t_min: the silhouette is short by less than t_min, the
 sum of w z by less than t_min times the largest depth), and a tile stops walking once all its
-pixels have stopped (so a tile with a pixel that no window covers walks to its end). The log
-transmittance log T(p) is the silhouette's output.
+pixels have stopped (so a tile with a pixel that no window covers walks to its end). Before that,
+the walk skips what only covers stopped pixels: the tile keeps bit masks of its live pixels per
+row and per column, and an instance whose box of window lines and lanes holds no live pixel, or a
+line of it whose lanes hold none, is not walked (:func:`.numba_lines.walk_lines`; the same
+results, as the compositing skips such elements anyway; on the 4k-strand benchmark frame the
+instances with elements fall from 132,445 to 81,730 and the elements listed from 2.52 M to 1.39 M).
+The kernels read each instance's own copy of its Gaussian's rows, in tile order
+(:func:`instance_rows`). The log transmittance log T(p) is the silhouette's output.
 
 Backward (:func:`composite_exact_backward`), from the kept elements in the same order: with
 q = d loss / d w = g_z z + g_c cos2a + g_s sin2a at the element's pixel, Q(p) = sum of w q over
