@@ -101,7 +101,9 @@ class _Plan:
         from vid2haircut.render import numba_tiles, numba_walk
 
         self.wint, self.wflt = wint, wflt
-        self.rows = None  # exact: (gpar, wint, wflt) rows of each instance, in tile order
+        # exact (t_min given, with gpar: the [G, 8] table in the kernels' order): the (gpar, wint,
+        # wflt) rows of each instance, in tile order (numba_exact.instance_rows)
+        self.rows = None
         self.has_head = head is not None
         self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         with _LOCK:
@@ -239,7 +241,7 @@ def _exact_backward(ctx, g_l, g_z, g_d):
     acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
-        ne.composite_exact_backward(ctx.gpar_i, plan.shade, plan.tile_start, plan.sorted_g, plan.work_start,
+        ne.composite_exact_backward(ctx.gpar_i, plan.shade, plan.tile_start, plan.work_start,
                                     plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc,
                                     plan.t_min)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)

@@ -160,10 +160,12 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
     """Forward compositing of all tiles, front to back.
 
     Args:
-        gpar, zs, wint, wflt, head, has_head, consts, tile_start, sorted_g, work_start, work_tiles,
-            width, height, tile, offsets, e_range, vis_weight, visible, compress: as for
-            :func:`.numba_kernels.composite_forward` (``consts``' second-silhouette ratio unused);
-            the Gaussians numbered front to back.
+        gpar, zs, wint, wflt: the rows of each instance, in tile order (:func:`instance_rows`;
+            zs the depths, gpar's column 5), the Gaussians numbered front to back.
+        head, has_head, consts, tile_start, sorted_g, work_start, work_tiles, width, height, tile,
+            offsets, e_range, vis_weight, visible, compress: as for
+            :func:`.numba_kernels.composite_forward` (``consts``' second-silhouette ratio unused;
+            sorted_g gives the Gaussian whose visibility an instance sets).
         shade: composite depth and direction (else the log transmittance only).
         elems: (pixel int32, alpha, d alpha / d power (input dtype)) element arrays, filled; the
             instances a tile did not walk get empty ranges.
@@ -247,14 +249,15 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
 
 
 @njit(**_PAR)
-def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work_tiles, width, height, tile, elems,
+def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, width, height, tile, elems,
                              e_range, grad, sums, acc, t_min):
     """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`.
 
     Args:
         grad: the upstream gradients (log T, sum w z, direction sums) in float64 (the last two read
             with ``shade`` only); sums: the forward's float64 sums; acc: [n_instances, 8] filled
-            (see :data:`.numba_kernels.N_ACC`); the rest as given to the forward kernel.
+            (see :data:`.numba_kernels.N_ACC`); gpar: the instances' rows, as the forward kernel's;
+            the rest as given to the forward kernel.
     """
     e_p, e_al, e_da = elems
     g_l, g_z, g_d = grad
