@@ -213,13 +213,11 @@ def _exact_forward(ctx, table, z, plan):
     visible = np.zeros(gpar.shape[0], np.bool_)
     gpar_i, wint_i, wflt_i = plan.rows
     with _LOCK:
-        _numba_threads()
         ne.composite_exact_forward(gpar_i, gpar_i[:, 5], wint_i, wflt_i, plan.head, plan.has_head, plan.consts,
                                    plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                    TILE, plan.offsets, elems, e_range, out, sums, plan.vis_weight, visible,
                                    numba_simd.USE_LINE16 and TILE == 16, plan.t_min)
     ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
-    ctx.gpar_i = gpar_i
     vis = np.empty_like(visible)
     vis[plan.order] = visible
     visible_t = torch.from_numpy(vis)
@@ -241,7 +239,7 @@ def _exact_backward(ctx, g_l, g_z, g_d):
     acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
-        ne.composite_exact_backward(ctx.gpar_i, plan.shade, plan.tile_start, plan.work_start,
+        ne.composite_exact_backward(plan.rows[0], plan.shade, plan.tile_start, plan.work_start,
                                     plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc,
                                     plan.t_min)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)

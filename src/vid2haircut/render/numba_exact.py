@@ -84,26 +84,12 @@ def depth_order(z):
 
 
 @njit(cache=True, inline="always")
-def _copy_row(dst, b, src, a):
-    """dst[b] = src[a] for 2-D arrays of the same width. The widths of the renderer's tables get
-    loops of a literal length: LLVM turns a row loop of run-time length into a call of memcpy,
-    whose per-call cost was ~5% of a whole exact forward+backward (perf, AMD Zen 3)."""
-    n = src.shape[1]
-    if n == 8:
-        for c in range(8):
-            dst[b, c] = src[a, c]
-    elif n == 4:
-        for c in range(4):
-            dst[b, c] = src[a, c]
-    elif n == 3:
-        for c in range(3):
-            dst[b, c] = src[a, c]
-    elif n == 2:
-        for c in range(2):
-            dst[b, c] = src[a, c]
-    else:
-        for c in range(n):
-            dst[b, c] = src[a, c]
+def _copy_row(dst, b, src, a, n):
+    """dst[b, :n] = src[a, :n]. Callers pass the width as a literal where they know it: LLVM turns
+    a row loop of run-time length into a call of memcpy, whose per-call cost was ~5% of a whole
+    exact forward+backward (perf, AMD Zen 3)."""
+    for c in range(n):
+        dst[b, c] = src[a, c]
 
 
 @njit(cache=True, parallel=True)
@@ -114,7 +100,12 @@ def permute_rows(src, order, dst, inverse):
         ii, j = np.int64(i), np.int64(order[i])  # (one integer type: the prange index may be unsigned)
         a = ii if inverse else j
         b = j if inverse else ii
-        _copy_row(dst, b, src, a)
+        if src.shape[1] == 8:  # the Gaussian table and its gradients
+            _copy_row(dst, b, src, a, 8)
+        elif src.shape[1] == 3:  # the covariances
+            _copy_row(dst, b, src, a, 3)
+        else:
+            _copy_row(dst, b, src, a, src.shape[1])
 
 
 @njit(cache=True, parallel=True)
@@ -126,15 +117,15 @@ def instance_rows(gstart, inst_pos, gpar, wint, wflt):
     strands at 256 x 256, one thread, perf, AMD Zen 3). Read in Gaussian order, written scattered
     (the stores do not stall as the loads of a gather do)."""
     n = inst_pos.shape[0]
-    gi = np.empty((n, gpar.shape[1]), gpar.dtype)
-    wi = np.empty((n, wint.shape[1]), wint.dtype)
-    fi = np.empty((n, wflt.shape[1]), wflt.dtype)
+    gi = np.empty((n, 8), gpar.dtype)
+    wi = np.empty((n, 4), wint.dtype)
+    fi = np.empty((n, 2), wflt.dtype)
     for g in prange(gstart.shape[0] - 1):
         for j in range(gstart[g], gstart[g + 1]):
             k = inst_pos[j]
-            _copy_row(gi, k, gpar, g)
-            _copy_row(wi, k, wint, g)
-            _copy_row(fi, k, wflt, g)
+            _copy_row(gi, k, gpar, g, 8)
+            _copy_row(wi, k, wint, g, 4)
+            _copy_row(fi, k, wflt, g, 2)
     return gi, wi, fi
 
 
