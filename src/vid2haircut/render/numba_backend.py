@@ -216,11 +216,9 @@ def _exact_forward(ctx, table, z, plan):
         ne.composite_exact_forward(gpar_i, gpar_i[:, 5], wint_i, wflt_i, plan.head, plan.has_head, plan.consts,
                                    plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                    TILE, plan.offsets, elems, e_range, out, sums, plan.vis_weight, visible,
-                                   numba_simd.USE_LINE16 and TILE == 16, plan.t_min)
+                                   numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order)
     ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
-    vis = np.empty_like(visible)
-    vis[plan.order] = visible
-    visible_t = torch.from_numpy(vis)
+    visible_t = torch.from_numpy(visible)  # in the table's order (the kernel maps it back)
     ctx.mark_non_differentiable(visible_t)
     ctx.set_materialize_grads(False)
     empty = torch.zeros((0, 0, 0), dtype=table.dtype)
@@ -242,10 +240,8 @@ def _exact_backward(ctx, g_l, g_z, g_d):
         ne.composite_exact_backward(plan.rows[0], plan.shade, plan.tile_start, plan.work_start,
                                     plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc,
                                     plan.t_min)
-        nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
-        out = np.empty_like(grads)
-        ne.permute_rows(grads, plan.order, out, True)
-    return torch.from_numpy(out).to(ctx.dtype), None, None
+        nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order)  # in the table's order
+    return torch.from_numpy(grads).to(ctx.dtype), None, None
 
 
 def composite_fused(
@@ -289,16 +285,14 @@ def composite_fused(
         if silhouette_ratio > 0.0:
             raise ValueError("exact compositing draws no second silhouette in the same walk")
         tab = table.detach().contiguous().numpy()
+        arrays = (a.detach().contiguous().numpy() for a in (covs, valid, frame.to(torch.int64)))
         with _LOCK:
             _numba_threads()
             order = numba_exact.depth_order(tab[:, 5])
-            gpar_sorted, covs_sorted = np.empty_like(tab), np.empty((tab.shape[0], 3), tab.dtype)
-            numba_exact.permute_rows(tab, order, gpar_sorted, False)
-            numba_exact.permute_rows(covs.detach().contiguous().numpy(), order, covs_sorted, False)
-        covs = torch.from_numpy(covs_sorted)
-        valid, frame = (torch.from_numpy(a.contiguous().numpy()[order]) for a in (valid, frame.to(torch.int64)))
+            gpar_sorted, *arrays = numba_exact.gather_gaussians(order, tab, *arrays)
+        covs, valid, frame = (torch.from_numpy(a) for a in arrays)
     dt = table.dtype
-    means = table[:, 0:2].detach() if order is None else torch.from_numpy(gpar_sorted[:, 0:2])
+    means = table[:, 0:2].detach() if order is None else torch.from_numpy(gpar_sorted[:, 0:2])  # (strided views)
     if torch_windows:
         win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)
         wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
@@ -309,7 +303,7 @@ def composite_fused(
         wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
         with _LOCK:
             _numba_threads()
-            numba_tiles.gaussian_windows(means.contiguous().numpy(), covs.detach().contiguous().numpy(),
+            numba_tiles.gaussian_windows(means.numpy(), covs.detach().contiguous().numpy(),
                                          valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do

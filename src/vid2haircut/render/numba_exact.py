@@ -93,19 +93,22 @@ def _copy_row(dst, b, src, a, n):
 
 
 @njit(cache=True, parallel=True)
-def permute_rows(src, order, dst, inverse):
-    """Rows of 2-D arrays, in parallel: dst[i] = src[order[i]], or with ``inverse`` dst[order[i]] =
-    src[i] (``order`` a permutation: the one undoes the other)."""
-    for i in prange(order.shape[0]):
-        ii, j = np.int64(i), np.int64(order[i])  # (one integer type: the prange index may be unsigned)
-        a = ii if inverse else j
-        b = j if inverse else ii
-        if src.shape[1] == 8:  # the Gaussian table and its gradients
-            _copy_row(dst, b, src, a, 8)
-        elif src.shape[1] == 3:  # the covariances
-            _copy_row(dst, b, src, a, 3)
-        else:
-            _copy_row(dst, b, src, a, src.shape[1])
+def gather_gaussians(order, gpar, covs, valid, frame):
+    """The Gaussians' rows in the order ``order`` (a [G] permutation, :func:`depth_order`), in one
+    parallel pass: (gpar [G, 8], covs [G, 3], valid [G], frame [G]) with row i that of Gaussian
+    order[i]."""
+    G = order.shape[0]
+    gs = np.empty((G, 8), gpar.dtype)
+    cs = np.empty((G, 3), covs.dtype)
+    vs = np.empty(G, valid.dtype)
+    fs = np.empty(G, frame.dtype)
+    for i in prange(G):
+        j = np.int64(order[i])
+        _copy_row(gs, i, gpar, j, 8)
+        _copy_row(cs, i, covs, j, 3)
+        vs[i] = valid[j]
+        fs[i] = frame[j]
+    return gs, cs, vs, fs
 
 
 @njit(cache=True, parallel=True)
@@ -147,7 +150,7 @@ def alpha_and_slope(pw, hf, amin, amax):
 @njit(**_PAR)
 def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade, tile_start, sorted_g,
                             work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, sums,
-                            vis_weight, visible, compress, t_min):
+                            vis_weight, visible, compress, t_min, order):
     """Forward compositing of all tiles, front to back.
 
     Args:
@@ -165,6 +168,8 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
         sums: [B, H, W, 3] float64, filled with the three sums unrounded (with ``shade``; the
             backward pass's Q).
         t_min: transmittance below which a pixel stops.
+        order: [G] int64, the caller's index of each Gaussian (numbered here in depth order):
+            ``visible`` is set at order[g], in the caller's order.
     """
     e_p, e_al, e_da = elems
     o_l, o_z, o_d = out
@@ -222,7 +227,7 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                                 acc[2, p] += w * s
                                 mw = max(mw, w)
                     if mw >= vis_weight:
-                        visible[sorted_g[kk]] = True
+                        visible[order[sorted_g[kk]]] = True
                 n += m
                 k = kb
             p = 0
@@ -299,4 +304,4 @@ def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, wi
                 acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
 
 
-__all__ = ["depth_order", "permute_rows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
+__all__ = ["depth_order", "gather_gaussians", "instance_rows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]

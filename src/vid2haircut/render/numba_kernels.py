@@ -249,11 +249,15 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
 
 
 @njit(**_PAR)
-def reduce_gradients(gstart, inst_pos, gpar, acc, grads):
+def reduce_gradients(gstart, inst_pos, gpar, acc, grads, dest=None):
     """grads [G, 8]: d loss / d (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a), summing the
     instance accumulators ``acc`` of each Gaussian in instance order (0 for undrawn Gaussians);
-    computed in float64, stored in the dtype of ``grads``."""
-    for g in prange(gstart.shape[0] - 1):
+    computed in float64, stored in the dtype of ``grads``. ``dest``: None (Gaussian g's row is
+    grads[g]) or a [G] permutation (its row is grads[dest[g]]: the exact model's Gaussians, numbered
+    in depth order, written back in the caller's order without a separate permutation pass)."""
+    for gg in prange(gstart.shape[0] - 1):
+        g = np.int64(gg)
+        r = g if dest is None else np.int64(dest[g])
         s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
         for j in range(gstart[g], gstart[g + 1]):
             k = inst_pos[j]
@@ -267,12 +271,12 @@ def reduce_gradients(gstart, inst_pos, gpar, acc, grads):
             s7 += acc[k, 7]
         if gstart[g] == gstart[g + 1]:
             for c in range(8):
-                grads[g, c] = 0.0
+                grads[r, c] = 0.0
             continue
         # power = log op - (q_xx dx^2 + 2 q_xy dx dy + q_yy dy^2) / 2 with dx = x - mean x
-        grads[g, 0] = gpar[g, G_QXX] * s0 + gpar[g, G_QXY] * s1
-        grads[g, 1] = gpar[g, G_QXY] * s0 + gpar[g, G_QYY] * s1
-        grads[g, 2] = -0.5 * s2
-        grads[g, 3] = -s3
-        grads[g, 4] = -0.5 * s4
-        grads[g, 5], grads[g, 6], grads[g, 7] = s5, s6, s7
+        grads[r, 0] = gpar[g, G_QXX] * s0 + gpar[g, G_QXY] * s1
+        grads[r, 1] = gpar[g, G_QXY] * s0 + gpar[g, G_QYY] * s1
+        grads[r, 2] = -0.5 * s2
+        grads[r, 3] = -s3
+        grads[r, 4] = -0.5 * s4
+        grads[r, 5], grads[r, 6], grads[r, 7] = s5, s6, s7
