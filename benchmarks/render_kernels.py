@@ -31,7 +31,7 @@ KERNELS = {
     "numba_walk": ("tile_bounds",),
     "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
     "numba_channels": ("channels_forward", "channels_backward"),
-    "numba_exact": ("depth_order", "gather_gaussians", "instance_rows", "composite_exact_forward", "composite_exact_backward"),
+    "numba_exact": ("depth_order", "gather_gaussians", "composite_exact_forward", "composite_exact_backward"),
 }
 
 

@@ -123,19 +123,6 @@ def test_early_termination_matches_reference(seed):
     assert np.array_equal(vis[clear], (ref.max_weight[0] >= 0.3)[clear])
 
 
-def test_instance_rows():
-    from vid2haircut.render.numba_exact import instance_rows
-
-    rng = np.random.default_rng(0)
-    gstart = np.array([0, 2, 2, 5, 6])  # 4 Gaussians, 6 instances (Gaussian 1 has none)
-    inst_pos = np.array([3, 0, 5, 1, 4, 2])
-    gpar, wint, wflt = rng.random((4, 8)), rng.integers(0, 9, (4, 4)), rng.random((4, 2)).astype(np.float32)
-    owner = np.empty(6, np.int64)
-    owner[inst_pos] = np.repeat(np.arange(4), np.diff(gstart))
-    for got, table in zip(instance_rows(gstart, inst_pos, gpar, wint, wflt), (gpar, wint, wflt)):
-        assert got.dtype == table.dtype and np.array_equal(got, table[owner])
-
-
 def test_translucent_silhouette_and_silhouette_only():
     """``silhouette_opacity`` with exact compositing is the silhouette of a second, silhouette-only
     exact render at that opacity; the silhouette-only render equals the shaded one's silhouette."""

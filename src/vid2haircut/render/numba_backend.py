@@ -102,19 +102,17 @@ class _Plan:
 
         self.wint, self.wflt = wint, wflt
         # exact (t_min given, with gpar: the [G, 8] table in the kernels' order): the (gpar, wint,
-        # wflt) rows of each instance, in tile order (numba_exact.instance_rows)
+        # wflt) rows of each instance, in tile order (numba_tiles.bin_windows)
         self.rows = None
         self.has_head = head is not None
         self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         with _LOCK:
             _numba_threads()
             hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
-            self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
-                wint, wflt, frame, batch, width, height, TILE, z, hmax)
-            if t_min is not None:  # exact: each instance's own rows (numba_exact.instance_rows), read in sequence
-                from vid2haircut.render import numba_exact
-
-                self.rows = numba_exact.instance_rows(self.gstart, self.inst_pos, gpar, wint, wflt)
+            self.gstart, self.inst_pos, self.tile_start, self.sorted_g, rows = numba_tiles.bin_windows(
+                wint, wflt, frame, batch, width, height, TILE, z, hmax, gpar if t_min is not None else np.empty((0, 8), dtype))
+            if t_min is not None:  # exact: each instance's own rows, read in sequence
+                self.rows = rows
                 bounds = numba_walk.tile_bounds(self.tile_start, np.arange(self.sorted_g.shape[0]), self.rows[1],
                                                 width, height, TILE)
             else:
@@ -238,8 +236,7 @@ def _exact_backward(ctx, g_l, g_z, g_d):
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
         ne.composite_exact_backward(plan.rows[0], plan.shade, plan.tile_start, plan.work_start,
-                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc,
-                                    plan.t_min)
+                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order)  # in the table's order
     return torch.from_numpy(grads).to(ctx.dtype), None, None
 

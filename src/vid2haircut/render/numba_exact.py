@@ -18,7 +18,7 @@ line of it whose lanes hold none, is not walked (:func:`.numba_lines.walk_lines`
 results, as the compositing skips such elements anyway; on the 4k-strand benchmark frame the
 instances with elements fall from 132,445 to 81,730 and the elements listed from 2.52 M to 1.39 M).
 The kernels read each instance's own copy of its Gaussian's rows, in tile order
-(:func:`instance_rows`). The log transmittance log T(p) is the silhouette's output.
+(:func:`.numba_tiles.bin_windows` with the table). The log transmittance log T(p) is the silhouette's output.
 
 Backward (:func:`composite_exact_backward`), from the kept elements in the same order: with
 q = d loss / d w = g_z z + g_c cos2a + g_s sin2a at the element's pixel, Q(p) = sum of w q over
@@ -26,8 +26,9 @@ the pixel (from the forward's float64 sums) and R = what the elements behind it 
 d loss / d alpha = T q - (R + g_logT) / (1 - alpha); then d loss / d power = that times
 d alpha / d power (alpha, 0 where clamped), and the per-instance moments of
 :func:`.numba_kernels.composite_backward` (reduced by :func:`.numba_kernels.reduce_gradients`).
-The same T sequence is recomputed with the same operations, so the backward pass stops every pixel
-where the forward did.
+The forward pass keeps only the elements it composited (moved down over those of stopped pixels,
+in place: 366k of the 1.39 M listed on the 4k-strand frame), so the backward pass walks exactly
+those, without a test per element, and recomputes the same T sequence with the same operations.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from numba import njit, prange
 from vid2haircut.render.numba_kernels import N_ACC, _pixel_xy, walk_scratch
 from vid2haircut.render.numba_lines import load_head, walk_lines
 from vid2haircut.render.numba_math import lane_cast, lane_exp
+from vid2haircut.render.numba_tiles import _copy_row
 from vid2haircut.render.numba_walk import C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_S, G_Z, tile_box
 
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
@@ -83,15 +85,6 @@ def depth_order(z):
     return order
 
 
-@njit(cache=True, inline="always")
-def _copy_row(dst, b, src, a, n):
-    """dst[b, :n] = src[a, :n]. Callers pass the width as a literal where they know it: LLVM turns
-    a row loop of run-time length into a call of memcpy, whose per-call cost was ~5% of a whole
-    exact forward+backward (perf, AMD Zen 3)."""
-    for c in range(n):
-        dst[b, c] = src[a, c]
-
-
 @njit(cache=True, parallel=True)
 def gather_gaussians(order, gpar, covs, valid, frame):
     """The Gaussians' rows in the order ``order`` (a [G] permutation, :func:`depth_order`), in one
@@ -109,27 +102,6 @@ def gather_gaussians(order, gpar, covs, valid, frame):
         vs[i] = valid[j]
         fs[i] = frame[j]
     return gs, cs, vs, fs
-
-
-@njit(cache=True, parallel=True)
-def instance_rows(gstart, inst_pos, gpar, wint, wflt):
-    """Each instance's copy of its Gaussian's rows, in tile order: (gpar [n, 8], wint [n, 4], wflt
-    [n, 2]) for the n instances of :func:`.numba_tiles.bin_windows` (``gstart``, ``inst_pos``).
-    The compositing kernels then read them one after the other, where a tile's Gaussians lie
-    scattered in the tables (those rows' cache misses were ~40% of the forward kernel's time: 4k
-    strands at 256 x 256, one thread, perf, AMD Zen 3). Read in Gaussian order, written scattered
-    (the stores do not stall as the loads of a gather do)."""
-    n = inst_pos.shape[0]
-    gi = np.empty((n, 8), gpar.dtype)
-    wi = np.empty((n, 4), wint.dtype)
-    fi = np.empty((n, 2), wflt.dtype)
-    for g in prange(gstart.shape[0] - 1):
-        for j in range(gstart[g], gstart[g + 1]):
-            k = inst_pos[j]
-            _copy_row(gi, k, gpar, g, 8)
-            _copy_row(wi, k, wint, g, 4)
-            _copy_row(fi, k, wflt, g, 2)
-    return gi, wi, fi
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
@@ -154,15 +126,16 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
     """Forward compositing of all tiles, front to back.
 
     Args:
-        gpar, zs, wint, wflt: the rows of each instance, in tile order (:func:`instance_rows`;
+        gpar, zs, wint, wflt: the rows of each instance, in tile order (:func:`.numba_tiles.bin_windows`;
             zs the depths, gpar's column 5), the Gaussians numbered front to back.
         head, has_head, consts, tile_start, sorted_g, work_start, work_tiles, width, height, tile,
             offsets, e_range, vis_weight, visible, compress: as for
             :func:`.numba_kernels.composite_forward` (``consts``' second-silhouette ratio unused;
             sorted_g gives the Gaussian whose visibility an instance sets).
         shade: composite depth and direction (else the log transmittance only).
-        elems: (pixel int32, alpha, d alpha / d power (input dtype)) element arrays, filled; the
-            instances a tile did not walk get empty ranges.
+        elems: (pixel int32, alpha, d alpha / d power (input dtype)) element arrays, filled with
+            the composited elements only (e_range: each instance's; the instances a tile did not
+            walk get empty ranges).
         out: (log T [B, H, W], sum w z [B, H, W], (sum w cos2a, sum w sin2a) [B, H, W, 2]) zeros
             in the input dtype, filled (the last two with ``shade`` only).
         sums: [B, H, W, 3] float64, filled with the three sums unrounded (with ``shade``; the
@@ -204,14 +177,21 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                 m = walk_lines(k, kb, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, False,
                                lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_da, n, e_range, compress, lm)
                 alpha_and_slope(e_al[n:n + m], e_da[n:n + m], amin, amax)
+                o = np.uint64(n)  # the composited elements, moved down over the skipped ones
                 for kk in range(k, kb):
                     z, c, s = gpar[kk, G_Z], gpar[kk, G_C], gpar[kk, G_S]
                     mw = 0.0
-                    for e in range(np.uint64(e_range[kk, 0]), np.uint64(e_range[kk, 1])):
+                    e0, e1 = np.uint64(e_range[kk, 0]), np.uint64(e_range[kk, 1])
+                    e_range[kk, 0] = o
+                    for e in range(e0, e1):
                         p = np.uint64(e_p[e])
                         tp = T[p]
                         if tp >= t_min:
                             a = e_al[e]
+                            e_p[o] = e_p[e]
+                            e_al[o] = a
+                            e_da[o] = e_da[e]
+                            o += np.uint64(1)
                             w = a * tp
                             tn = tp * (1.0 - a)
                             T[p] = tn
@@ -226,9 +206,10 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                                 acc[1, p] += w * c
                                 acc[2, p] += w * s
                                 mw = max(mw, w)
+                    e_range[kk, 1] = o
                     if mw >= vis_weight:
                         visible[order[sorted_g[kk]]] = True
-                n += m
+                n = np.int64(o)  # the next instances' elements follow the kept ones
                 k = kb
             p = 0
             for y in range(y0, y1 + 1):
@@ -246,8 +227,9 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
 
 @njit(**_PAR)
 def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, width, height, tile, elems,
-                             e_range, grad, sums, acc, t_min):
-    """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`.
+                             e_range, grad, sums, acc):
+    """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`
+    (every one of them composited).
 
     Args:
         grad: the upstream gradients (log T, sum w z, direction sums) in float64 (the last two read
@@ -281,8 +263,6 @@ def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, wi
                 for e in range(np.uint64(e_range[k, 0]), np.uint64(e_range[k, 1])):
                     p = np.uint64(e_p[e])
                     tp = T[p]
-                    if tp < t_min:
-                        continue
                     a = e_al[e]
                     om = 1.0 - a
                     w = a * tp
@@ -304,4 +284,4 @@ def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, wi
                 acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
 
 
-__all__ = ["depth_order", "gather_gaussians", "instance_rows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
+__all__ = ["depth_order", "gather_gaussians", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
