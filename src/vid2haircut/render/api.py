@@ -48,7 +48,7 @@ from vid2haircut.render.gaussians import DEFAULT_DILATION, DEFAULT_STRAND_WIDTH,
 from vid2haircut.render.kernels import KernelConsts
 from vid2haircut.render.project import NUMPY_FLOATS, check_cameras
 from vid2haircut.render.numba_backend import composite_fused, resolve_backend
-from vid2haircut.render.numba_ops import channels_fused, gaussian_table, project_fused
+from vid2haircut.render.numba_ops import channels_fused, gaussian_table, normalize_depth_fused, project_fused
 from vid2haircut.render.raster import composite
 from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
 
@@ -245,7 +245,7 @@ def _finish(sums: PixelSums, visibility: Tensor, g, fused: bool = False) -> Stra
         inv = torch.where(has_dir, torch.rsqrt(torch.where(has_dir, norm2, 1.0)), 0.0)
         direction = sums.dirs * inv[..., None]  # (0, 0) where there is no direction (StrandRender.angle)
         mask = (silhouette > 0.5) & filled
-    depth_normalized = normalize_depth(depth, mask)
+    depth_normalized = normalize_depth_fused(depth, mask) if fused else normalize_depth(depth, mask)
     return StrandRender(silhouette, direction, depth, depth_normalized, mask, visibility, g)
 
 

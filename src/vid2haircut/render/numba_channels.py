@@ -84,3 +84,87 @@ def channels_backward(weight, wz, dirs, g_depth, g_dir, wmin, n2min, with_depth,
             b0, b1 = gn * a, gn * b
             g_dirs[i, 0] = (g0 * inv + b0) + b0
             g_dirs[i, 1] = (g1 * inv + b1) + b1
+
+
+
+@njit(cache=True, inline="always")
+def _typed(value, like):
+    """``value`` as a scalar of the dtype of the array ``like`` (so that arithmetic stays in it)."""
+    a = np.empty(1, like.dtype)
+    a[0] = value
+    return a[0]
+
+
+@njit(**_PAR, fastmath={"nnan", "nsz", "reassoc"})
+def normalize_forward(depth, mask, out, stats):
+    """Min-max normalised depth per frame inside the mask, as
+    :func:`vid2haircut.render.api.normalize_depth` computes it (the same operations in the same
+    dtype, so the same values: (depth - min) / max(max - min, 1e-8), 0 outside the mask and in
+    frames with an empty mask). The depths must not be NaN (fastmath: the min and max are
+    vectorised; the channels' depth never is).
+
+    Args:
+        depth, out: [B, M] one float dtype; mask: [B, M] bool.
+        stats: [B, 4] float64, filled with (min, max, the span before the clamp, pixels in the
+            mask) per frame for :func:`normalize_backward`.
+    """
+    for b in prange(depth.shape[0]):
+        zero, eps, inf = _typed(0.0, depth), _typed(1e-8, depth), _typed(np.inf, depth)
+        # min and max of the masked depths through ``out`` (LLVM vectorises these loops, not one
+        # reducing selects of the mask: 0.07 against 0.21 ms for 256 x 256, measured)
+        for i in range(depth.shape[1]):
+            out[b, i] = depth[b, i] if mask[b, i] else inf
+        lo = inf
+        for i in range(depth.shape[1]):
+            lo = min(lo, out[b, i])
+        for i in range(depth.shape[1]):
+            out[b, i] = depth[b, i] if mask[b, i] else -inf
+        hi = -inf
+        for i in range(depth.shape[1]):
+            hi = max(hi, out[b, i])
+        n = 0
+        for i in range(depth.shape[1]):
+            n += mask[b, i]
+        dmin = lo if n > 0 else zero
+        raw = hi - dmin if n > 0 else _typed(1.0, depth)
+        span = max(raw, eps)
+        for i in range(depth.shape[1]):
+            q = (depth[b, i] - dmin) / span
+            out[b, i] = q if mask[b, i] else zero
+        stats[b, 0], stats[b, 1], stats[b, 2], stats[b, 3] = lo, hi, raw, n
+
+
+@njit(**_PAR, fastmath={"nnan", "nsz", "reassoc"})
+def normalize_backward(depth, mask, out, stats, grad, g_depth):
+    """d loss / d depth [B, M] (``g_depth``, filled) of :func:`normalize_forward` from the
+    gradient ``grad`` [B, M] of its output ``out``: autograd's result for the torch operations of
+    :func:`vid2haircut.render.api.normalize_depth`, to round-off (its sums run in another order).
+    Inside the mask: grad / span, plus, at the pixels holding the minimum, d loss / d min shared
+    evenly among them, and the same for the maximum (as autograd's amin / amax share it):
+    d loss / d min = -sum(grad) / span - c d loss / d span, d loss / d max = c d loss / d span,
+    d loss / d span = -sum(grad out) / span, c = 1 where the span was not clamped (raw >= 1e-8)."""
+    for b in prange(depth.shape[0]):
+        zero, eps = _typed(0.0, depth), _typed(1e-8, depth)
+        lo, hi, raw = _typed(stats[b, 0], depth), _typed(stats[b, 1], depth), _typed(stats[b, 2], depth)
+        if stats[b, 3] == 0:
+            for i in range(depth.shape[1]):
+                g_depth[b, i] = zero
+            continue
+        span = max(raw, eps)
+        gsum = gout = 0.0
+        nlo = nhi = 0
+        for i in range(depth.shape[1]):
+            m = mask[b, i]
+            g = grad[b, i] if m else zero
+            gsum += g
+            gout += g * out[b, i]
+            v = depth[b, i]
+            nlo += m & (v == lo)
+            nhi += m & (v == hi)
+        g_span = -gout / span if raw >= eps else 0.0
+        g_lo = (-gsum / span - g_span) / nlo
+        g_hi = g_span / nhi
+        for i in range(depth.shape[1]):
+            v = depth[b, i]
+            g = grad[b, i] / span + ((g_lo if v == lo else 0.0) + (g_hi if v == hi else 0.0))
+            g_depth[b, i] = g if mask[b, i] else zero

