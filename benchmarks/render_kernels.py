@@ -30,7 +30,7 @@ KERNELS = {
     "numba_tiles": ("gaussian_windows", "tile_head_max", "bin_windows", "assign_tiles"),
     "numba_walk": ("tile_bounds",),
     "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
-    "numba_channels": ("channels_forward", "channels_backward"),
+    "numba_channels": ("channels_forward", "channels_backward", "normalize_forward", "normalize_backward"),
     "numba_exact": ("depth_order", "gather_gaussians", "composite_exact_forward", "composite_exact_backward"),
 }
 

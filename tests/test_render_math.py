@@ -51,7 +51,7 @@ def test_log1m_relative_error(dtype, tol):
 @functools.cache
 def _lines_for(compaction, lanes=16):
     """A numba loop calling line16 (``lanes`` 16) or line8 (8: at lane0s[j] on row j) compiled with
-    ``compaction`` once per row (built once each)."""
+    ``compaction`` once per row, with the row's lanes_on bits ons[j] (built once each)."""
     line = numba_simd.make_line16(compaction, lanes)
     if lanes == 16:
         call = numba.njit(lambda *a: line(*a[:-1]))  # line16 has no lane0 argument
@@ -60,12 +60,13 @@ def _lines_for(compaction, lanes=16):
 
     @numba.njit
     def lines(qa, qb, vlo, vhi, hl, zref, with_zref, zgs, bases, rows, dvs, qv, logop, half, cut, z, big,
-              keep_any, prs, si, e_al, e_la, e_p, lane0s):
+              keep_any, prs, si, e_al, e_la, e_p, ons, lane0s):
         n = 0
         for j in range(rows.shape[0]):
             n += call(qa[j], qb[j], vlo[j], vhi[j], hl, zref, with_zref, zgs[j],
                       np.uint64(bases[j]), np.int32(rows[j]), dvs[j], qv, logop, half, cut, z, big, keep_any,
-                      np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n), np.uint64(lane0s[j]))
+                      np.int32(prs[j]), np.int32(si), e_al, e_la, e_p, np.uint64(n), np.uint32(ons[j]),
+                      np.uint64(lane0s[j]))
         return n
 
     return lines
@@ -100,8 +101,9 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compact
     same z_ref update (none without it), the same kept lanes, bit for bit the same power and head
     factor, the pixel indices, then zeros in the line's remaining slots; lines with every, no and
     some lanes kept, the head in front (factor 0), level with (in between) and behind (1), and +inf
-    head depth. line8 evaluates lanes lane0 .. lane0 + 7 of each line (lane0 0 or 8) and leaves the
-    others (their z_ref included) as they are."""
+    head depth, and lanes_on masks with every, none or some of the lanes on (they change the kept
+    lanes only, not z_ref). line8 evaluates lanes lane0 .. lane0 + 7 of each line (lane0 0 or 8) and
+    leaves the others (their z_ref included) as they are."""
     _lines = _lines_for(compaction, lanes)
     rng = np.random.default_rng(1)
     c = lambda x: np.asarray(x, dtype)  # noqa: E731
@@ -129,11 +131,13 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compact
     zref0 = zref.copy()
     lane0s = rng.choice([0, 8], J).astype(np.uint64) if lanes == 8 else np.zeros(J, np.uint64)
     lane0s[0] = 0
+    ons = np.where(rng.random(J) < 0.3, 0xFFFFFFFF, rng.integers(0, 1 << 16, J)).astype(np.uint32)
+    ons[0], ons[2] = 0xFFFFFFFF, 0  # line 0: every lane kept; line 2: none on
     n = _lines(qa, qb, vlo, vhi, hl, zref, True, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any, prs, si,
-               e_al, e_la, e_p, lane0s)
+               e_al, e_la, e_p, ons, lane0s)
     unchanged = zref0.copy()
     assert _lines(qa, qb, vlo, vhi, hl, unchanged, False, zgs, bases, rows, dvs, qv, logop, half, cut, z, big, keep_any,
-                  prs, si, e_al.copy(), e_la.copy(), e_p.copy(), lane0s) == n
+                  prs, si, e_al.copy(), e_la.copy(), e_p.copy(), ons, lane0s) == n
     assert np.array_equal(unchanged, zref0)  # without z_ref: not touched
     ref_p, ref_f, ref_pix = [], [], []
     ref_zref = zref0.copy()
@@ -147,7 +151,7 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compact
         x = (hl[int(bases[j]):int(bases[j]) + 16] - z) * big
         x = np.where(c(0) > x, c(0), x)
         f = np.where(c(1) < x, c(1), x)
-        kept = win & (p > cut) & (f > 0) & keep_any
+        kept = win & (p > cut) & (f > 0) & keep_any & ((ons[j] >> np.arange(16, dtype=np.uint32)) & 1 != 0)
         ref_p.append(p[kept])
         ref_f.append(f[kept])
         ref_pix.append((prs[j] + np.arange(16) * si)[kept])

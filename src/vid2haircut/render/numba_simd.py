@@ -205,7 +205,7 @@ def make_line16(compaction: str = COMPACTION, lanes: int = LANES):
     if lanes == LANES:
         @intrinsic
         def line16(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big,
-                   keep_any, pr, si, e_al, e_la, e_p, n):
+                   keep_any, pr, si, e_al, e_la, e_p, n, lanes_on):
             return _line16_typing(compaction, LANES, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p)
 
         return line16
@@ -214,7 +214,7 @@ def make_line16(compaction: str = COMPACTION, lanes: int = LANES):
 
     @intrinsic
     def line8(typingctx, qa, qb, vlo, vhi, hl, zref, with_zref, zg, base, rr, dv, qv, logop, half, cut, z, big,
-              keep_any, pr, si, e_al, e_la, e_p, n, lane0):
+              keep_any, pr, si, e_al, e_la, e_p, n, lanes_on, lane0):
         return _line16_typing(compaction, 8, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p)
 
     return line8
@@ -224,7 +224,7 @@ def _line16_typing(compaction, nl, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
     """One line of the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`) in 16 lanes:
     update z_ref, append the line's kept elements at e_*[n:] and return how many (int64).
     ``nl`` = 8: lanes lane0 .. lane0 + 7 of the line only (``lane0``, uint64, a last argument after
-    ``n``: 0 or 8), the others left as they are (for lines whose window lanes all lie in one half:
+    ``lanes_on``: 0 or 8), the others left as they are (for lines whose window lanes all lie in one half:
     the same elements and z_ref as line16 gives, since it keeps no lane and changes no z_ref
     outside the window).
 
@@ -232,8 +232,9 @@ def _line16_typing(compaction, nl, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
     vlo[i] <= rr <= vhi[i]; there, with ``with_zref``, zref[base + i] := zg if zg < zref[base + i]
     (``zg`` must be finite and > 0, as a drawn Gaussian's depth is, and zref never NaN).
     Its power p = logop - half (qa[i] + dv (qb[i] + qv dv)), head factor
-    f = min(max((hl[base + i] - z) big, 0), 1); kept when in the window, p > cut, f > 0 and
-    ``keep_any``; its element is (pixel pr + i si (int32), p, f) into (e_p, e_al, e_la).
+    f = min(max((hl[base + i] - z) big, 0), 1); kept when in the window, p > cut, f > 0,
+    ``keep_any`` and bit i of ``lanes_on`` (uint32: the exact model's live pixels of the line, all
+    ones for the binned model); its element is (pixel pr + i si (int32), p, f) into (e_p, e_al, e_la).
     qa / qb / hl / zref / e_al / e_la and the float scalars share one float dtype (float32 or
     float64); vlo / vhi / e_p are int32; base and n uint64. Writes at most ``nl`` slots of each
     output from n on (the kept lanes, then zeros), packed by ``compaction``.
@@ -241,12 +242,13 @@ def _line16_typing(compaction, nl, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
     ft = qa.dtype
     extra = (types.uint64,) if nl != LANES else ()
     sig = types.int64(qa, qb, vlo, vhi, hl, zref, types.boolean, ft, types.uint64, types.int32, ft, ft, ft, ft, ft, ft,
-                      ft, types.boolean, types.int32, types.int32, e_al, e_la, e_p, types.uint64, *extra)
+                      ft, types.boolean, types.int32, types.int32, e_al, e_la, e_p, types.uint64, types.uint32, *extra)
 
     def codegen(context, builder, signature, args):
         (qa_v, qb_v, lo_v, hi_v, hl_v, zr_v, wz_v, zg_v, base_v, rr_v, dv_v, qv_v, logop_v, half_v, cut_v, z_v, big_v,
          keep_v, pr_v, si_v, al_v, la_v, p_v, n_v) = args[:24]
-        lane0 = args[24] if nl != LANES else _ir.Constant(_I64, 0)
+        on_v = args[24]
+        lane0 = args[25] if nl != LANES else _ir.Constant(_I64, 0)
         aty = signature.args
         qa_ = _load(builder, _data(context, builder, aty[0], qa_v), lane0, nl)
         qb_ = _load(builder, _data(context, builder, aty[1], qb_v), lane0, nl)
@@ -285,6 +287,8 @@ def _line16_typing(compaction, nl, qa, qb, vlo, vhi, hl, zref, e_al, e_la, e_p):
         kept = builder.and_(inside, builder.fcmp_ordered(">", p, _splat(builder, cut_v, nl)))
         kept = builder.and_(kept, builder.fcmp_ordered(">", f, zero))
         kept = builder.select(keep_v, kept, _ir.Constant(kept.type, None))
+        on = builder.trunc(builder.lshr(builder.zext(on_v, _I64), lane0), _ir.IntType(nl))  # bits lane0 ..
+        kept = builder.and_(kept, builder.bitcast(on, kept.type))
         # pixel pr + i si of lane i = lane0 + j (int32, wrapping: the same value in any order)
         iota = builder.add(_ir.Constant(_ir.VectorType(_I32, nl), list(range(nl))),
                            _splat(builder, builder.trunc(lane0, _I32), nl))
