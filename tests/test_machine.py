@@ -2,6 +2,7 @@
 
 import json
 
+import numba
 import torch
 
 from vid2haircut.machine import cpu_model, machine_info, machine_summary
@@ -28,6 +29,7 @@ def test_machine_info_names_what_decides_the_last_bits():
     assert info["render_compaction"] == numba_simd.COMPACTION in numba_simd.COMPACTIONS
     assert info["numba_cpu"] and info["cpu"] and info["logical_cpus"] >= 1
     assert info["device"] == "cpu" and info["cuda_device"] is None
+    assert info["numba_threading"] == numba.config.THREADING_LAYER
 
 
 def test_machine_summary_names_cpu_and_kernel_sets():

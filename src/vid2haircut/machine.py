@@ -46,7 +46,9 @@ def machine_info(device: str = "cpu") -> dict:
     Returns:
         A JSON-able dict: ``cpu`` (:func:`cpu_model`), ``logical_cpus``, ``torch`` (version),
         ``torch_cpu_capability``, ``torch_threads``, ``numba`` (version), ``numba_cpu`` (the CPU
-        name numba compiles for), ``render_compaction`` (the walk's compaction), ``device``, and
+        name numba compiles for), ``numba_threading`` (the threading layer the renderer's kernels
+        run on, :func:`vid2haircut.render.numba_backend.numba_available`: "tbb" or "workqueue"; it
+        sets their speed, not their results), ``render_compaction`` (the walk's compaction), ``device``, and
         ``cuda_device`` (the GPU's name on a CUDA device, else None).
     """
     import numba
@@ -54,6 +56,7 @@ def machine_info(device: str = "cpu") -> dict:
     import llvmlite.binding as llvm
     from numba.core import config
 
+    from vid2haircut.render.numba_backend import numba_available
     from vid2haircut.render.numba_simd import COMPACTION
 
     cuda = None
@@ -67,6 +70,7 @@ def machine_info(device: str = "cpu") -> dict:
         "torch_threads": torch.get_num_threads(),
         "numba": numba.__version__,
         "numba_cpu": config.CPU_NAME or llvm.get_host_cpu_name(),
+        "numba_threading": config.THREADING_LAYER if numba_available() else None,
         "render_compaction": COMPACTION,
         "device": str(device),
         "cuda_device": cuda,
@@ -76,8 +80,9 @@ def machine_info(device: str = "cpu") -> dict:
 def machine_summary(info: dict | None = None) -> str:
     """One line naming the machine of :func:`machine_info` (``info``; this machine's when None), for
     the headers of benchmark reports: "AMD EPYC (family 25 model 1); torch 2.13.0+cpu, AVX2 kernels,
-    2 threads; numba target znver3, walk compaction permute"."""
+    2 threads; numba target znver3, tbb threads, walk compaction permute"."""
     m = machine_info() if info is None else info
     gpu = f"; GPU {m['cuda_device']}" if m["cuda_device"] else ""
     return (f"{m['cpu']}; torch {m['torch']}, {m['torch_cpu_capability']} kernels, {m['torch_threads']} threads; "
-            f"numba target {m['numba_cpu']}, walk compaction {m['render_compaction']}{gpu}")
+            f"numba target {m['numba_cpu']}, {m.get('numba_threading')} threads, "
+            f"walk compaction {m['render_compaction']}{gpu}")

@@ -76,8 +76,9 @@ def numba_available() -> bool:
         import numba
     except ImportError:
         return False
+    tbb = tbb_layer_usable()  # (loads the library: also for a layer the environment names, "tbb" or "safe")
     if "NUMBA_THREADING_LAYER" not in os.environ:
-        numba.config.THREADING_LAYER = "tbb" if tbb_layer_usable() else "workqueue"
+        numba.config.THREADING_LAYER = "tbb" if tbb else "workqueue"
     return True
 
 
