@@ -152,6 +152,10 @@ def test_depth_order():
     z = np.full(40, 0.5, np.float32)  # one high digit: the low pass alone
     z[::3] = 0.25
     assert np.array_equal(depth_order(z), np.argsort(z, kind="stable"))
+    z = np.full(7, 0.5, np.float32)  # one depth; and no depth at all
+    assert np.array_equal(depth_order(z), np.arange(7)) and depth_order(z[:0]).shape == (0,)
+    z = rng.choice(np.float32([0.3, 0.31, 0.7, np.inf, 1e-30, 3e38]), 100000)  # many ties, extreme depths
+    assert np.array_equal(depth_order(z), np.argsort(z, kind="stable"))
 
 
 def test_bad_options():
