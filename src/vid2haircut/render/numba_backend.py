@@ -25,8 +25,9 @@ follows the source file of each compiled function, not the modules it inlines: a
 :mod:`.numba_math`, :mod:`.numba_simd` or :mod:`.numba_lines` alone, delete the ``*.nbi`` /
 ``*.nbc`` files of ``__pycache__`` (a package install or update replaces every file, so users are
 not affected).
-Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``; the results are
-bitwise identical for any thread count. The kernels share the cores with torch's OpenMP workers,
+Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``, on numba's TBB
+threading layer where the ``tbb`` package's library loads, else its workqueue layer
+(:func:`numba_available`); the results are bitwise identical for any thread count and either layer. The kernels share the cores with torch's OpenMP workers,
 which spin for a while after each parallel torch op; importing vid2haircut before torch shortens
 that spin (``GOMP_SPINCOUNT``, see the package docstring). Memory: the forward pass keeps 16
 bytes per window element for the backward pass in float32 (24 in float64; ~120 MB allocated for

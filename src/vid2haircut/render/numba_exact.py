@@ -26,9 +26,11 @@ the pixel (from the forward's float64 sums) and R = what the elements behind it 
 d loss / d alpha = T q - (R + g_logT) / (1 - alpha); then d loss / d power = that times
 d alpha / d power (alpha, 0 where clamped), and the per-instance moments of
 :func:`.numba_kernels.composite_backward` (reduced by :func:`.numba_kernels.reduce_gradients`).
-The forward pass keeps only the elements it composited (moved down over those of stopped pixels,
-in place: 366k of the 1.39 M listed on the 4k-strand frame), so the backward pass walks exactly
-those, without a test per element, and recomputes the same T sequence with the same operations.
+The walk lists no lane of a pixel stopped before its chunk of instances (366k of the 1.39 M
+elements it listed before on the 4k-strand frame), and the forward pass keeps only the elements it
+composited (moved down in place over those whose pixel stopped within the chunk), so the backward
+pass walks exactly those, without a test per element, and recomputes the same T sequence with the
+same operations.
 """
 
 from __future__ import annotations
