@@ -27,8 +27,9 @@ follows the source file of each compiled function, not the modules it inlines: a
 not affected).
 Threads: ``min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)``, on numba's TBB
 threading layer where the ``tbb`` package's library loads, else its workqueue layer
-(:func:`numba_available`); the results are bitwise identical for any thread count and either layer. The kernels share the cores with torch's OpenMP workers,
-which spin for a while after each parallel torch op; importing vid2haircut before torch shortens
+(:func:`numba_available`); the results are bitwise identical for any thread count and either
+layer. The kernels share the cores with torch's OpenMP workers, which spin for a while after each
+parallel torch op; importing vid2haircut before torch shortens
 that spin (``GOMP_SPINCOUNT``, see the package docstring). Memory: the forward pass keeps 16
 bytes per window element for the backward pass in float32 (24 in float64; ~120 MB allocated for
 4k strands at 256 x 256, about 40% of it touched).
@@ -152,8 +153,9 @@ class _Plan:
         with _LOCK:
             _numba_threads()
             hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
+            table = gpar if t_min is not None else np.empty((0, 8), dtype)  # (exact: rows per instance)
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g, rows = numba_tiles.bin_windows(
-                wint, wflt, frame, batch, width, height, TILE, z, hmax, gpar if t_min is not None else np.empty((0, 8), dtype))
+                wint, wflt, frame, batch, width, height, TILE, z, hmax, table)
             if t_min is not None:  # exact: each instance's own rows, read in sequence
                 self.rows = rows
                 bounds = numba_walk.tile_bounds(self.tile_start, np.arange(self.sorted_g.shape[0]), self.rows[1],
