@@ -165,13 +165,16 @@ def _lane_log1m(a):
 
 
 def lane_cast(x, like):
-    """x converted to the float type of ``like`` (float32 or float64; numba only): float32
-    arithmetic with an int or a float64 constant would otherwise be done in float64."""
+    """x converted to the float type of ``like`` (a float32 or float64 scalar, or an array of
+    one; numba only): float32 arithmetic with an int or a float64 constant would otherwise be done
+    in float64."""
     raise NotImplementedError("lane_cast is for numba-compiled code")
 
 
 @overload(lane_cast, inline="always", jit_options={"cache": True})
 def _lane_cast(x, like):
+    if isinstance(like, types.Array):
+        like = like.dtype
     if like == types.float32:
         return lambda x, like: np.float32(x)
     return lambda x, like: np.float64(x)
