@@ -188,7 +188,7 @@ def render_strands(
                         table[:, 6:8].reshape(B, S, 2), valid.reshape(B, S))
     else:
         g = segment_gaussians(points, K, world_2_cam, strand_width, dilation, near)
-    frame = torch.arange(B, device=points.device).repeat_interleave(S)
+    frame = torch.arange(B, device=points.device)[:, None].expand(B, S).reshape(G)  # (a copy: faster than repeat_interleave)
     log_op = math.log(opacity)
     # CPU: cache-sized chunks; GPU: one chunk (each chunk costs kernel launches, not memory traffic)
     chunk = 262_144 if points.device.type == "cpu" else 1 << 62

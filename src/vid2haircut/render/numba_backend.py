@@ -227,8 +227,7 @@ class _FusedComposite(torch.autograd.Function):
         if plan.exact:
             return _exact_backward(ctx, g_l, g_z, g_d)
         B, H, W = plan.shape
-        g = tuple(np.zeros(shape) if t is None or shape[0] == 0 else t.detach().to(torch.float64).contiguous().numpy()
-                  for t, shape in zip((g_l, g_z, g_d, g_2), plan.out_shapes))  # float64, as the kernel reads them
+        g = _grad_images((g_l, g_z, g_d, g_2), plan.out_shapes, ctx.gpar.dtype)
         acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))  # composite_backward writes every entry
         grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
         with _LOCK:
@@ -236,6 +235,15 @@ class _FusedComposite(torch.autograd.Function):
                                   plan.work_start, plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, acc)
             nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads)
         return torch.from_numpy(grads).to(ctx.dtype), None, None
+
+
+def _grad_images(grads, shapes, dtype) -> tuple:
+    """The upstream gradients of the compositing outputs as numpy arrays of ``dtype`` (the table's:
+    one compiled kernel per dtype; the kernels sum in float64), zeros where autograd passed None,
+    empty where the kernels do not read them (``shapes``: the outputs' shapes, empty ones first 0)."""
+    tdt = torch.from_numpy(np.empty(0, dtype)).dtype
+    return tuple(np.zeros(shape, dtype) if t is None or shape[0] == 0 else t.detach().to(tdt).contiguous().numpy()
+                 for t, shape in zip(grads, shapes))
 
 
 def _exact_forward(ctx, table, z, plan):
@@ -275,8 +283,7 @@ def _exact_backward(ctx, g_l, g_z, g_d):
     plan = ctx.plan
     B, H, W = plan.shape
     shapes = ((B, H, W), (B, H, W) if plan.shade else (0, 0, 0), (B, H, W, 2) if plan.shade else (0, 0, 0, 0))
-    g = tuple(np.zeros(shape) if t is None or shape[0] == 0 else t.detach().to(torch.float64).contiguous().numpy()
-              for t, shape in zip((g_l, g_z, g_d), shapes))
+    g = _grad_images((g_l, g_z, g_d), shapes, ctx.gpar.dtype)
     acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:

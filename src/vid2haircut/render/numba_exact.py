@@ -234,9 +234,9 @@ def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, wi
     (every one of them composited).
 
     Args:
-        grad: the upstream gradients (log T, sum w z, direction sums) in float64 (the last two read
-            with ``shade`` only); sums: the forward's float64 sums; acc: [n_instances, 8] filled
-            (see :data:`.numba_kernels.N_ACC`); gpar: the instances' rows, as the forward kernel's;
+        grad: the upstream gradients (log T, sum w z, direction sums) in the table's dtype (summed
+            in float64; the last two read with ``shade`` only); sums: the forward's float64 sums;
+            acc: [n_instances, 8] filled (see :data:`.numba_kernels.N_ACC`); gpar: the instances' rows, as the forward kernel's;
             the rest as given to the forward kernel.
     """
     e_p, e_al, e_da = elems

@@ -188,7 +188,7 @@ def composite_backward(gpar, consts, nbins, tile_start, sorted_g, work_start, wo
 
     Args:
         grad: the upstream gradients of the four arrays of ``out`` of :func:`composite_forward`, in
-            float64 (those it did not write are not read); the other arguments as given to (and
+            the table's dtype (summed in float64; those it did not write are not read); the other arguments as given to (and
             filled by) :func:`composite_forward`.
         acc: [n_instances, 8] filled with the instance sums (see ``N_ACC``; every entry is
             written, the array need not be zeroed).

@@ -42,12 +42,15 @@ class _FusedProject(torch.autograd.Function):
         ctx.consts = (strand_width, dilation, near)
         covs_t, valid_t = torch.from_numpy(covs), torch.from_numpy(valid)
         ctx.mark_non_differentiable(covs_t, valid_t)
+        ctx.set_materialize_grads(False)  # no zero-filled gradients of covs and valid
         return torch.from_numpy(gpar), covs_t, valid_t
 
     @staticmethod
     def backward(ctx, grad, _g_covs, _g_valid):
         from vid2haircut.render import numba_project as npj
 
+        if grad is None:
+            return None, None, None, None, None, None
         pts, Kn, En = (t.numpy() for t in ctx.saved_tensors)
         out = np.empty(pts.shape, pts.dtype)  # float64 sums, stored in the points' dtype
         g = grad.detach().contiguous().numpy()
