@@ -337,7 +337,7 @@ def composite_fused(
         arrays = (a.detach().contiguous().numpy() for a in (covs, valid, frame.to(torch.int64)))
         with _LOCK:
             _numba_threads()
-            order = numba_exact.depth_order(tab[:, 5])
+            order = numba_exact.depth_order(np.ascontiguousarray(tab[:, 5]))  # (contiguous: 1.45 -> 1.30 ms for 124k)
             gpar_sorted, *arrays = numba_exact.gather_gaussians(order, tab, *arrays)
         covs, valid, frame = (torch.from_numpy(a) for a in arrays)
     dt = table.dtype
