@@ -38,9 +38,10 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from vid2haircut.render.numba_kernels import N_ACC, PREFETCH, _pixel_xy, walk_scratch
+from vid2haircut.render.numba_kernels import GATHER_AHEAD, N_ACC, _pixel_xy, walk_scratch
 from vid2haircut.render.numba_lines import load_head, walk_lines
-from vid2haircut.render.numba_math import lane_cast, lane_exp, prefetch_row
+from vid2haircut.render.numba_math import lane_cast, lane_exp
+from vid2haircut.render.numba_simd import prefetch_row
 from vid2haircut.render.numba_tiles import _copy_row
 from vid2haircut.render.numba_walk import C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_S, G_Z, tile_box
 
@@ -98,7 +99,7 @@ def gather_gaussians(order, gpar, covs, valid, frame):
     vs = np.empty(G, valid.dtype)
     fs = np.empty(G, frame.dtype)
     for i in prange(G):
-        ia = np.int64(order[min(i + PREFETCH, G - 1)])  # the rows read PREFETCH iterations later
+        ia = np.int64(order[min(i + GATHER_AHEAD, G - 1)])  # the rows read GATHER_AHEAD iterations later
         prefetch_row(gpar, ia)
         prefetch_row(covs, ia)
         j = np.int64(order[i])

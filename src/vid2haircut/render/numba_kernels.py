@@ -40,14 +40,14 @@ import numpy as np
 from numba import njit, prange
 
 from vid2haircut.render.numba_lines import fold_zref, load_head, walk_lines
-from vid2haircut.render.numba_math import prefetch_row
+from vid2haircut.render.numba_simd import prefetch_row
 from vid2haircut.render.numba_walk import (C_AMAX, C_AMIN, C_RATIO, G_C, G_MX, G_MY, G_QXX, G_QXY, G_QYY, G_S, G_Z, JIT,
                                            alpha_and_l, alpha_and_l2, bin_and_grad_sums, bin_sums, gradient_table,
                                            tile_box, weight_table)
 
-PREFETCH = 16
-"""How many Gaussians ahead :func:`reduce_gradients` prefetches their instances' rows (16 and 32
-measured alike, 8 slower)."""
+GATHER_AHEAD = 16
+"""How many rows ahead the gathers of scattered rows prefetch (:func:`reduce_gradients`: the
+instances of Gaussian g + 16, 16 and 32 measured alike, 8 slower; :func:`.numba_exact.gather_gaussians`)."""
 N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
 
@@ -259,13 +259,13 @@ def reduce_gradients(gstart, inst_pos, gpar, acc, grads, dest=None):
     computed in float64, stored in the dtype of ``grads``. ``dest``: None (Gaussian g's row is
     grads[g]) or a [G] permutation (its row is grads[dest[g]]: the exact model's Gaussians, numbered
     in depth order, written back in the caller's order without a separate permutation pass).
-    The rows of Gaussian g + PREFETCH are prefetched (:func:`.numba_math.prefetch_row`): in the exact
+    The rows of Gaussian g + GATHER_AHEAD are prefetched (:func:`.numba_simd.prefetch_row`): in the exact
     model a tile lists its instances in depth order, so those of one Gaussian lie scattered over
     ``acc`` (3.3 -> 1.75 ms for the 218,000 instances of 4k strands at 256 x 256; AMD Zen 3)."""
     G = gstart.shape[0] - 1
     for gg in prange(G):
         g = np.int64(gg)
-        ga = min(g + PREFETCH, G - 1)
+        ga = min(g + GATHER_AHEAD, G - 1)
         for j in range(gstart[ga], gstart[ga + 1]):
             prefetch_row(acc, inst_pos[j])
         r = g if dest is None else np.int64(dest[g])

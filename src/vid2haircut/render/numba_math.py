@@ -1,5 +1,4 @@
-"""Vectorisable exp and log for the numba kernels (float64 and float32, branch-free, a few ulp), and a
-cache prefetch hint (:func:`prefetch_row`).
+"""Vectorisable exp and log for the numba kernels (float64 and float32, branch-free, a few ulp).
 
 numba lowers ``math.exp`` / ``math.log1p`` to scalar libm calls (4-10 ns each), which cost more
 than the rest of a compositing element together; these versions are plain arithmetic plus bit
@@ -179,33 +178,3 @@ def _lane_cast(x, like):
     if like == types.float32:
         return lambda x, like: np.float32(x)
     return lambda x, like: np.float64(x)
-
-
-@intrinsic
-def prefetch_row(typingctx, arr, i):
-    """Ask the CPU to load row ``i`` of the array ``arr`` (its first element's cache line) into
-    the cache ahead of its use (LLVM's prefetch intrinsic: a read, kept in all cache levels; a hint
-    only: no fault, no effect on any value). For gathers of scattered rows whose addresses are known
-    some iterations ahead, where the out-of-order core alone keeps too few misses in flight: the
-    exact model's gradient sums (:func:`.numba_kernels.reduce_gradients`) 3.3 -> 1.75 ms."""
-    if not isinstance(arr, types.Array) or not isinstance(i, types.Integer):
-        return None
-
-    def codegen(context, builder, signature, args):
-        from llvmlite import ir
-        from numba.core import cgutils
-
-        aryty, idxty = signature.args
-        ary = context.make_array(aryty)(context, builder, args[0])
-        zero = context.get_constant(types.intp, 0)
-        idx = context.cast(builder, args[1], idxty, types.intp)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [idx] + [zero] * (aryty.ndim - 1),
-                                       wraparound=False)
-        i8p, i32 = ir.IntType(8).as_pointer(), ir.IntType(32)
-        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
-                                            "llvm.prefetch.p0i8")
-        # (address, 0 = read, 3 = keep in every cache level, 1 = data cache)
-        builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3), ir.Constant(i32, 1)])
-        return context.get_dummy_value()
-
-    return types.void(arr, i), codegen
