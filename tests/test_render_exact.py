@@ -156,6 +156,18 @@ def test_depth_order():
     assert np.array_equal(depth_order(z), np.arange(7)) and depth_order(z[:0]).shape == (0,)
     z = rng.choice(np.float32([0.3, 0.31, 0.7, np.inf, 1e-30, 3e38]), 100000)  # many ties, extreme depths
     assert np.array_equal(depth_order(z), np.argsort(z, kind="stable"))
+    # spans of 1 to 31 bits (one, two or three passes of up to 12-bit digits), with negative and
+    # NaN depths; only negative and NaN ones; only NaN ones
+    for span in (1e-7, 1e-6, 1e-4, 1e-2, 0.5, 1e3, 1e30):
+        z = (0.5 + rng.random(3000) * span).astype(np.float32)
+        z[rng.integers(0, 3000, 40)] = np.float32(np.nan)
+        z[rng.integers(0, 3000, 40)] = np.float32(-0.3)
+        z[rng.integers(0, 3000, 40)] = np.float32(0.0)
+        key = np.where(np.isnan(z), np.inf, np.maximum(z, 0.0))
+        assert np.array_equal(depth_order(z), np.argsort(key, kind="stable")), span
+    z = np.float32([np.nan, -1.0, np.nan, -2.0, 0.0])
+    assert list(depth_order(z)) == [1, 3, 4, 0, 2] and list(depth_order(z[:4])) == [1, 3, 0, 2]
+    assert list(depth_order(z[[0, 2]])) == [0, 1]
 
 
 def test_bad_options():
