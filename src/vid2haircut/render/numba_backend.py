@@ -225,7 +225,7 @@ class _FusedComposite(torch.autograd.Function):
 
         plan = ctx.plan
         if plan.exact:
-            return _exact_backward(ctx, g_l, g_z, g_d)
+            return _exact_backward(ctx, g_l, g_2, g_z, g_d)
         B, H, W = plan.shape
         g = _grad_images((g_l, g_z, g_d, g_2), plan.out_shapes, ctx.gpar.dtype)
         acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))  # composite_backward writes every entry
@@ -255,9 +255,10 @@ def _exact_forward(ctx, table, z, plan):
     B, H, W = plan.shape
     dt = gpar.dtype
     none = (0, 0, 0)
-    out = (np.zeros((B, H, W), dt), np.zeros((B, H, W) if plan.shade else none, dt),
-           np.zeros((B, H, W, 2) if plan.shade else none + (0,), dt))
+    out = (np.zeros((B, H, W), dt), np.zeros((B, H, W), dt), np.zeros((B, H, W) if plan.shade else none, dt),
+           np.zeros((B, H, W, 2) if plan.shade else none + (0,), dt))  # log T, silhouette, sum w z, directions
     sums = np.zeros((B, H, W, 3) if plan.shade else none + (0,))
+    t_end = np.empty((B, H, W))  # (read by the backward pass only where the forward pass wrote it)
     cap = plan.capacity
     elems = (np.empty(cap, np.int32), np.empty(cap, dt), np.empty(cap, dt))
     e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
@@ -266,29 +267,30 @@ def _exact_forward(ctx, table, z, plan):
     with _LOCK:
         ne.composite_exact_forward(gpar_i, gpar_i[:, 5], wint_i, wflt_i, plan.head, plan.has_head, plan.consts,
                                    plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
-                                   TILE, plan.offsets, elems, e_range, out, sums, plan.vis_weight, visible,
+                                   TILE, plan.offsets, elems, e_range, out, sums, t_end, plan.vis_weight, visible,
                                    numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order)
     ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
+    ctx.t_end = t_end
     visible_t = torch.from_numpy(visible)  # in the table's order (the kernel maps it back)
     ctx.mark_non_differentiable(visible_t)
     ctx.set_materialize_grads(False)
-    empty = torch.zeros((0, 0, 0), dtype=table.dtype)
-    return (*(torch.from_numpy(o) for o in out), empty, visible_t)
+    log_t, weight, wz, wdirs = (torch.from_numpy(o) for o in out)
+    return log_t, wz, wdirs, weight, visible_t  # (the silhouette in the slot of the bins' second one)
 
 
-def _exact_backward(ctx, g_l, g_z, g_d):
-    """:class:`_FusedComposite`'s backward with :mod:`.numba_exact`."""
+def _exact_backward(ctx, g_l, g_w, g_z, g_d):
+    """:class:`_FusedComposite`'s backward with :mod:`.numba_exact` (``g_w``: the silhouette's)."""
     from vid2haircut.render import numba_exact as ne, numba_kernels as nk
 
     plan = ctx.plan
     B, H, W = plan.shape
-    shapes = ((B, H, W), (B, H, W) if plan.shade else (0, 0, 0), (B, H, W, 2) if plan.shade else (0, 0, 0, 0))
-    g = _grad_images((g_l, g_z, g_d), shapes, ctx.gpar.dtype)
+    shapes = ((B, H, W), (B, H, W), (B, H, W) if plan.shade else (0, 0, 0), (B, H, W, 2) if plan.shade else (0, 0, 0, 0))
+    g = _grad_images((g_l, g_w, g_z, g_d), shapes, ctx.gpar.dtype)
     acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
         ne.composite_exact_backward(plan.rows[0], plan.shade, plan.tile_start, plan.work_start,
-                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, acc)
+                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, ctx.t_end, acc)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order)  # in the table's order
     return torch.from_numpy(grads).to(ctx.dtype), None, None
 
@@ -365,8 +367,11 @@ def composite_fused(
     plan.gpar_sorted = gpar_sorted if order is not None else None
     zs = z * (1.0 / consts.depth_bin) if order is None else z  # bin units, rounded like the torch kernels
     log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)
-    weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
-    log_t2 = log_t2 if plan.second else None
+    if plan.exact:  # the kernels' silhouette (in the second silhouette's slot)
+        weight, log_t2 = log_t2, None
+    else:
+        weight = -torch.expm1(log_t) + 0.0  # + 0.0 turns -0.0 into 0.0
+        log_t2 = log_t2 if plan.second else None
     if not consts.shading:
         zeros = torch.zeros_like(log_t)
         return PixelSums(log_t, weight, zeros, torch.stack([zeros, zeros], -1)), visible, log_t2

@@ -144,7 +144,7 @@ def alpha_and_slope(pw, hf, amin, amax):
 @njit(**_PAR)
 def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade, tile_start, sorted_g,
                             work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, sums,
-                            vis_weight, visible, compress, t_min, order):
+                            t_end, vis_weight, visible, compress, t_min, order):
     """Forward compositing of all tiles, front to back.
 
     Args:
@@ -158,16 +158,19 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
         elems: (pixel int32, alpha, d alpha / d power (input dtype)) element arrays, filled with
             the composited elements only (e_range: each instance's; the instances a tile did not
             walk get empty ranges).
-        out: (log T [B, H, W], sum w z [B, H, W], (sum w cos2a, sum w sin2a) [B, H, W, 2]) zeros
-            in the input dtype, filled (the last two with ``shade`` only).
+        out: (log T [B, H, W], silhouette 1 - T [B, H, W], sum w z [B, H, W], (sum w cos2a,
+            sum w sin2a) [B, H, W, 2]) zeros in the input dtype, filled (the last two with ``shade``
+            only); the silhouette computed here in float64 from T (in place of torch's -expm1(log T)
+            on the rounded log T, and its autograd node: 0.3 ms less per 256 x 256 frame).
         sums: [B, H, W, 3] float64, filled with the three sums unrounded (with ``shade``; the
-            backward pass's Q).
+            backward pass's Q). t_end: [B, H, W] float64, T at the end, filled in the tiles with
+            instances (the only ones the backward pass reads).
         t_min: transmittance below which a pixel stops.
         order: [G] int64, the caller's index of each Gaussian (numbered here in depth order):
             ``visible`` is set at order[g], in the caller's order.
     """
     e_p, e_al, e_da = elems
-    o_l, o_z, o_d = out
+    o_l, o_w, o_z, o_d = out
     L = tile
     amin, amax = consts[C_AMIN], consts[C_AMAX]
     for wk in prange(work_start.shape[0] - 1):
@@ -237,6 +240,8 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
             for y in range(y0, y1 + 1):
                 for x in range(x0, x1 + 1):
                     o_l[b, y, x] = np.log(T[p])
+                    o_w[b, y, x] = 1.0 - T[p]
+                    t_end[b, y, x] = T[p]
                     if shade:
                         o_z[b, y, x] = acc[0, p]
                         o_d[b, y, x, 0] = acc[1, p]
@@ -249,18 +254,19 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
 
 @njit(**_PAR)
 def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, width, height, tile, elems,
-                             e_range, grad, sums, acc):
+                             e_range, grad, sums, t_end, acc):
     """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`
     (every one of them composited).
 
     Args:
-        grad: the upstream gradients (log T, sum w z, direction sums) in the table's dtype (summed
-            in float64; the last two read with ``shade`` only); sums: the forward's float64 sums;
-            acc: [n_instances, 8] filled (see :data:`.numba_kernels.N_ACC`); gpar: the instances' rows, as the forward kernel's;
+        grad: the upstream gradients (log T, silhouette, sum w z, direction sums) in the table's
+            dtype (summed in float64; the last two read with ``shade`` only); sums, t_end: the
+            forward's; acc: [n_instances, 8] filled (see :data:`.numba_kernels.N_ACC`); gpar: the
+            instances' rows, as the forward kernel's;
             the rest as given to the forward kernel.
     """
     e_p, e_al, e_da = elems
-    g_l, g_z, g_d = grad
+    g_l, g_w, g_z, g_d = grad
     for wk in prange(work_start.shape[0] - 1):
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
@@ -271,7 +277,7 @@ def composite_exact_backward(gpar, shade, tile_start, work_start, work_tiles, wi
             Q = np.zeros(npx)  # what the elements not yet visited add to sum w q
             for p in range(npx):
                 y, x = int(py[p]), int(px[p])
-                gl[0, p] = g_l[b, y, x]
+                gl[0, p] = g_l[b, y, x] - g_w[b, y, x] * t_end[b, y, x]  # d loss / d log T
                 if shade:
                     gl[1, p] = g_z[b, y, x]
                     gl[2, p] = g_d[b, y, x, 0]
