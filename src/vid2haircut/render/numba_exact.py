@@ -183,7 +183,7 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
             tw = x1 - x0 + 1
             npx = tw * (y1 - y0 + 1)
             T = np.ones(npx)
-            acc = np.zeros((3, npx))
+            acc = np.zeros((npx, 3))  # (pixel-major: one base address in the element loop, not three)
             live = npx
             th = y1 - y0 + 1
             lm = np.zeros((2, L), np.uint32)  # the live pixels' bits in both layouts (walk_lines)
@@ -227,9 +227,9 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                                 lm[0, yy] &= ~np.uint32(1 << xx)
                                 lm[1, xx] &= ~np.uint32(1 << yy)
                             if shade:
-                                acc[0, p] += w * z
-                                acc[1, p] += w * c
-                                acc[2, p] += w * s
+                                acc[p, 0] += w * z
+                                acc[p, 1] += w * c
+                                acc[p, 2] += w * s
                                 mw = max(mw, w)
                     e_range[kk, 1] = o
                     if mw >= vis_weight:
@@ -243,12 +243,12 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                     o_w[b, y, x] = 1.0 - T[p]
                     t_end[b, y, x] = T[p]
                     if shade:
-                        o_z[b, y, x] = acc[0, p]
-                        o_d[b, y, x, 0] = acc[1, p]
-                        o_d[b, y, x, 1] = acc[2, p]
-                        sums[b, y, x, 0] = acc[0, p]
-                        sums[b, y, x, 1] = acc[1, p]
-                        sums[b, y, x, 2] = acc[2, p]
+                        o_z[b, y, x] = acc[p, 0]
+                        o_d[b, y, x, 0] = acc[p, 1]
+                        o_d[b, y, x, 1] = acc[p, 2]
+                        sums[b, y, x, 0] = acc[p, 0]
+                        sums[b, y, x, 1] = acc[p, 1]
+                        sums[b, y, x, 2] = acc[p, 2]
                     p += 1
 
 
