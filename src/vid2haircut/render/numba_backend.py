@@ -139,29 +139,20 @@ class _Plan:
     """Everything the kernels need besides the differentiable Gaussian values (numpy arrays)."""
 
     def __init__(self, wint, wflt, frame, z, head, consts: KernelConsts, batch: int, height: int, width: int, dtype,
-                 ratio: float = 0.0, t_min: float | None = None, gpar=None):
+                 ratio: float = 0.0, t_min: float | None = None):
         import numba
 
         from vid2haircut.render import numba_tiles, numba_walk
 
         self.wint, self.wflt = wint, wflt
-        # exact (t_min given, with gpar: the [G, 8] table in the kernels' order): the (gpar, wint,
-        # wflt) rows of each instance, in tile order (numba_tiles.bin_windows)
-        self.rows = None
         self.has_head = head is not None
         self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         with _LOCK:
             _numba_threads()
             hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
-            table = gpar if t_min is not None else np.empty((0, 8), dtype)  # (exact: rows per instance)
-            self.gstart, self.inst_pos, self.tile_start, self.sorted_g, rows = numba_tiles.bin_windows(
-                wint, wflt, frame, batch, width, height, TILE, z, hmax, table)
-            if t_min is not None:  # exact: each instance's own rows, read in sequence
-                self.rows = rows
-                bounds = numba_walk.tile_bounds(self.tile_start, np.arange(self.sorted_g.shape[0]), self.rows[1],
-                                                width, height, TILE)
-            else:
-                bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
+            self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
+                wint, wflt, frame, batch, width, height, TILE, z, hmax)
+            bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
         bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_simd)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
@@ -263,9 +254,8 @@ def _exact_forward(ctx, table, z, plan):
     elems = (np.empty(cap, np.int32), np.empty(cap, dt), np.empty(cap, dt))
     e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
     visible = np.zeros(gpar.shape[0], np.bool_)
-    gpar_i, wint_i, wflt_i = plan.rows
     with _LOCK:
-        ne.composite_exact_forward(gpar_i, gpar_i[:, 5], wint_i, wflt_i, plan.head, plan.has_head, plan.consts,
+        ne.composite_exact_forward(gpar, plan.z, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                    plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                    TILE, plan.offsets, elems, e_range, out, sums, t_end, plan.vis_weight, visible,
                                    numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order)
@@ -289,7 +279,7 @@ def _exact_backward(ctx, g_l, g_w, g_z, g_d):
     acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
-        ne.composite_exact_backward(plan.rows[0], plan.shade, plan.tile_start, plan.work_start,
+        ne.composite_exact_backward(ctx.gpar, plan.shade, plan.tile_start, plan.sorted_g, plan.work_start,
                                     plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, ctx.t_end, acc)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order)  # in the table's order
     return torch.from_numpy(grads).to(ctx.dtype), None, None
@@ -361,9 +351,9 @@ def composite_fused(
         head = head_depth.detach().to(dt).contiguous().numpy()
     z = table[:, 5].detach().contiguous() if order is None else torch.from_numpy(np.ascontiguousarray(gpar_sorted[:, 5]))
     plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), z.numpy(), head, consts, batch, height,
-                 width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio, t_min,
-                 None if order is None else gpar_sorted)
+                 width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio, t_min)
     plan.order = order
+    plan.z = z.numpy()  # (exact: the depths in depth order)
     plan.gpar_sorted = gpar_sorted if order is not None else None
     zs = z * (1.0 / consts.depth_bin) if order is None else z  # bin units, rounded like the torch kernels
     log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)

@@ -135,9 +135,9 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     live[1, x] bit y; tile relative): an instance whose window box (its lines by its lanes
     ua..ub) holds no live pixel is not walked (an empty range), nor is a line whose lanes hold
     none, and the lanes of stopped pixels are not kept (26% of the 1.39 M elements listed on the
-    4k-strand frame before); the rows of ``wint``, ``wflt``,
-    ``gpar`` and ``zs`` are then the instances' own (row k for instance k, in tile order: read one
-    after the other, where the Gaussians' rows lie scattered) instead of their Gaussians'.
+    4k-strand frame before). The rows of instance k's Gaussian sorted_g[k] are read from ``wint``,
+    ``wflt``, ``gpar`` and ``zs``, those of instance k + PREFETCH prefetched (also past ``i1``: the
+    exact model walks a tile a few instances at a time).
     """
     tw = x1 - x0 + 1
     cut = lane_cast(math.log(consts[1]) - 1e-3, zs[0])  # power > cut: inside the ellipse
@@ -151,13 +151,13 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     n = off
     for k in range(i0, i1):
         e_range[k, 0] = n
-        if not packed and k + PREFETCH < i1:  # the rows of a later instance's Gaussian, fetched while this one is walked
+        if k + PREFETCH < sorted_g.shape[0]:  # a later instance's Gaussian's rows, fetched while this one is walked
             gn = sorted_g[k + PREFETCH]
             prefetch_row(gpar, gn)
             prefetch_row(wint, gn)
             prefetch_row(wflt, gn)
             prefetch_row(zs, gn)
-        g = k if packed else sorted_g[k]
+        g = sorted_g[k]
         lay, lo, hi, mvr, qv, lanes0, umask = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi, live)
         z, zg = gpar[g, G_Z], zs[g]
         keep_any = qv > zero  # else degenerate: z_ref only

@@ -118,17 +118,8 @@ def _tile_box(g, wint, wflt, width, height, tile, shift):
     return (bx0, bx1, by0, by1) if ok else (0, -1, 0, -1)
 
 
-@njit(cache=True, inline="always")
-def _copy_row(dst, b, src, a, n):
-    """dst[b, :n] = src[a, :n]. Callers pass the width as a literal: LLVM turns a row loop of
-    run-time length into a call of memcpy, whose per-call cost was ~5% of a whole exact
-    forward+backward (perf, AMD Zen 3)."""
-    for c in range(n):
-        dst[b, c] = src[a, c]
-
-
 @njit(cache=True, parallel=True)
-def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, gpar):
+def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
     """List the instances of every tile.
 
     Args:
@@ -138,18 +129,11 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, gpar):
         z: [G] camera depth of each Gaussian, hmax: [NT] largest head depth of each tile
             (:func:`tile_head_max`, same dtype): no instance where z >= hmax (hidden; a NaN
             depth is kept).
-        gpar: a [0, 8] array, or the [G, 8] Gaussian table: then each instance also gets its own copy of its
-            Gaussian's rows, in tile order (the exact model's kernels read them in sequence, where
-            a tile's Gaussians lie scattered in the tables; those rows' cache misses were ~40% of
-            its forward kernel's time: 4k strands at 256 x 256, one thread, perf, AMD Zen 3).
 
     Returns:
         gstart [G + 1] (instances of Gaussian g are gstart[g]:gstart[g + 1] in Gaussian order),
         inst_pos [n] (position of each of them in the tile order), tile_start [NT + 1] (instances
-        of tile t are tile_start[t]:tile_start[t + 1] in tile order), sorted_g [n] (their Gaussian),
-        rows: (gpar [n, 8], wint [n, 4], wflt [n, 2]) of the instances in tile order with the table,
-        else with no rows (written in the same pass that places the instances: read in Gaussian
-        order, written scattered, as stores do not stall as the loads of a gather do).
+        of tile t are tile_start[t]:tile_start[t + 1] in tile order), sorted_g [n] (their Gaussian).
     """
     G = wint.shape[0]
     ntx = (width + tile - 1) // tile
@@ -218,11 +202,6 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, gpar):
             cur += k
     sorted_g = np.empty(n, np.int64)
     inst_pos = np.empty(n, np.int64)
-    with_rows = gpar.shape[0] > 0
-    nr = n if with_rows else 0
-    gi = np.empty((nr, 8), gpar.dtype)
-    wi = np.empty((nr, 4), wint.dtype)
-    fi = np.empty((nr, 2), wflt.dtype)
     for c in prange(CH):
         cursor = counts[c].copy()
         g = np.searchsorted(gstart, c * step, side="right") - 1  # Gaussian of the chunk's first instance
@@ -233,11 +212,7 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, gpar):
             cursor[inst_tile[j]] += 1
             sorted_g[pos] = g
             inst_pos[j] = pos
-            if with_rows:
-                _copy_row(gi, pos, gpar, g, 8)
-                _copy_row(wi, pos, wint, g, 4)
-                _copy_row(fi, pos, wflt, g, 2)
-    return gstart, inst_pos, tile_start, sorted_g, (gi, wi, fi)
+    return gstart, inst_pos, tile_start, sorted_g
 
 
 @njit(cache=True)
