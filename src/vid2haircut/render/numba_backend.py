@@ -248,7 +248,7 @@ def _exact_forward(ctx, table, z, plan):
     none = (0, 0, 0)
     out = (np.zeros((B, H, W), dt), np.zeros((B, H, W), dt), np.zeros((B, H, W) if plan.shade else none, dt),
            np.zeros((B, H, W, 2) if plan.shade else none + (0,), dt))  # log T, silhouette, sum w z, directions
-    sums = np.zeros((B, H, W, 3) if plan.shade else none + (0,))
+    sums = np.empty((B, H, W, 3) if plan.shade else none + (0,))  # (read where the forward wrote it, as t_end)
     t_end = np.empty((B, H, W))  # (read by the backward pass only where the forward pass wrote it)
     cap = plan.capacity
     elems = (np.empty(cap, np.int32), np.empty(cap, dt), np.empty(cap, dt))

@@ -172,9 +172,9 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
             sum w sin2a) [B, H, W, 2]) zeros in the input dtype, filled (the last two with ``shade``
             only); the silhouette computed here in float64 from T (in place of torch's -expm1(log T)
             on the rounded log T, and its autograd node: 0.3 ms less per 256 x 256 frame).
-        sums: [B, H, W, 3] float64, filled with the three sums unrounded (with ``shade``; the
-            backward pass's Q). t_end: [B, H, W] float64, T at the end, filled in the tiles with
-            instances (the only ones the backward pass reads).
+        sums: [B, H, W, 3] float64, the three sums unrounded (with ``shade``; the backward pass's
+            Q), and t_end: [B, H, W] float64, T at the end, both filled in the tiles with instances
+            (the only ones the backward pass reads).
         t_min: transmittance below which a pixel stops.
         order: [G] int64, the caller's index of each Gaussian (numbered here in depth order):
             ``visible`` is set at order[g], in the caller's order.
