@@ -11,7 +11,7 @@ Accuracy against the exact per-pixel front-to-back reference (tests/render_refer
 documented in :mod:`vid2haircut.render.raster` and checked by tests/test_render.py. A second
 compositing model, exact front to back with early termination (``compositing="exact"``, numba
 backend only: :mod:`.numba_exact`), equals that reference to round-off where no pixel stops early
-(elsewhere the silhouette is within ``t_min``) and takes 0.57-0.83 of the
+(elsewhere the silhouette is within ``t_min``) and takes 0.43-0.70 of the
 binned model's time (README, Performance); the binned model stays the default (the fits' measured
 quality is the binned model's).
 
