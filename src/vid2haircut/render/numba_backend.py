@@ -255,7 +255,7 @@ def _exact_forward(ctx, table, z, plan):
     e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
     visible = np.zeros(gpar.shape[0], np.bool_)
     with _LOCK:
-        ne.composite_exact_forward(gpar, plan.z, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
+        ne.composite_exact_forward(gpar, z_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                    plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
                                    TILE, plan.offsets, elems, e_range, out, sums, t_end, plan.vis_weight, visible,
                                    numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order)
@@ -353,7 +353,6 @@ def composite_fused(
     plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), z.numpy(), head, consts, batch, height,
                  width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio, t_min)
     plan.order = order
-    plan.z = z.numpy()  # (exact: the depths in depth order)
     plan.gpar_sorted = gpar_sorted if order is not None else None
     zs = z * (1.0 / consts.depth_bin) if order is None else z  # bin units, rounded like the torch kernels
     log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)
