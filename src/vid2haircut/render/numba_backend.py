@@ -187,7 +187,7 @@ class _FusedComposite(torch.autograd.Function):
         from vid2haircut.render import numba_kernels as nk
 
         if plan.exact:
-            return _exact_forward(ctx, table, zs, plan)
+            return _exact_forward(ctx, table, plan)
 
         gpar = table.detach().contiguous().numpy()
         zs_np = zs.detach().contiguous().numpy()
@@ -237,12 +237,12 @@ def _grad_images(grads, shapes, dtype) -> tuple:
                  for t, shape in zip(grads, shapes))
 
 
-def _exact_forward(ctx, table, z, plan):
-    """:class:`_FusedComposite`'s forward with :mod:`.numba_exact` (``z``: the depths, not bin units)."""
+def _exact_forward(ctx, table, plan):
+    """:class:`_FusedComposite`'s forward with :mod:`.numba_exact`."""
     from vid2haircut.render import numba_exact as ne
 
-    gpar = plan.gpar_sorted  # the table's rows in depth order
-    z_np = z.detach().contiguous().numpy()
+    gpar = plan.gpar_sorted  # the table's rows in depth order (views of numba_exact.gaussian_records)
+    z_np = gpar[:, 5]
     B, H, W = plan.shape
     dt = gpar.dtype
     none = (0, 0, 0)
@@ -319,21 +319,10 @@ def composite_fused(
     """
     from vid2haircut.render import numba_tiles
 
-    order = None
-    if t_min is not None:  # exact front-to-back compositing: the kernels see the Gaussians in depth order
-        from vid2haircut.render import numba_exact
-
-        if silhouette_ratio > 0.0:
-            raise ValueError("exact compositing draws no second silhouette in the same walk")
-        tab = table.detach().contiguous().numpy()
-        arrays = (a.detach().contiguous().numpy() for a in (covs, valid, frame.to(torch.int64)))
-        with _LOCK:
-            _numba_threads()
-            order = numba_exact.depth_order(np.ascontiguousarray(tab[:, 5]))  # (contiguous: 1.45 -> 1.30 ms for 124k)
-            gpar_sorted, *arrays = numba_exact.gather_gaussians(order, tab, *arrays)
-        covs, valid, frame = (torch.from_numpy(a) for a in arrays)
+    if t_min is not None and silhouette_ratio > 0.0:
+        raise ValueError("exact compositing draws no second silhouette in the same walk")
     dt = table.dtype
-    means = table[:, 0:2].detach() if order is None else torch.from_numpy(gpar_sorted[:, 0:2])  # (strided views)
+    means = table[:, 0:2].detach()
     if torch_windows:
         win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)
         wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
@@ -346,15 +335,30 @@ def composite_fused(
             _numba_threads()
             numba_tiles.gaussian_windows(means.numpy(), covs.detach().contiguous().numpy(),
                                          valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
+    frame_np = frame.to(torch.int64).contiguous().numpy()
+    order = gpar_sorted = None
+    if t_min is None:
+        z = table[:, 5].detach().contiguous()
+        z_np = z.numpy()
+    else:  # exact front-to-back compositing: the kernels see the Gaussians in depth order, as records
+        from vid2haircut.render import numba_exact
+
+        tab = table.detach().contiguous().numpy()
+        # one cache-line record per Gaussian: its row, depth and window (numba_exact.gaussian_records)
+        gpar_sorted, rec_wint, rec_wflt = numba_exact.gaussian_records(tab.shape[0], tab.dtype)
+        with _LOCK:
+            _numba_threads()
+            order = numba_exact.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
+            frame_np = numba_exact.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint, rec_wflt)
+        wint, wflt, z_np = rec_wint, rec_wflt, gpar_sorted[:, 5]  # (strided views of the records)
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
         head = head_depth.detach().to(dt).contiguous().numpy()
-    z = table[:, 5].detach().contiguous() if order is None else torch.from_numpy(np.ascontiguousarray(gpar_sorted[:, 5]))
-    plan = _Plan(wint, wflt, frame.to(torch.int64).contiguous().numpy(), z.numpy(), head, consts, batch, height,
+    plan = _Plan(wint, wflt, frame_np, z_np, head, consts, batch, height,
                  width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio, t_min)
     plan.order = order
     plan.gpar_sorted = gpar_sorted if order is not None else None
-    zs = z * (1.0 / consts.depth_bin) if order is None else z  # bin units, rounded like the torch kernels
+    zs = z * (1.0 / consts.depth_bin) if order is None else None  # bin units, rounded like the torch kernels
     log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)
     if plan.exact:  # the kernels' silhouette (in the second silhouette's slot)
         weight, log_t2 = log_t2, None

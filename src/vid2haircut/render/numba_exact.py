@@ -113,26 +113,46 @@ def _copy_row(dst, b, src, a, n):
         dst[b, c] = src[a, c]
 
 
+def gaussian_records(G, dtype):
+    """Views (gpar [G, 8] of ``dtype``, wint [G, 4] int32, wflt [G, 2] float32) of one table of
+    records, one per Gaussian, each starting on a 64-byte cache line: the rows that the exact
+    kernels read for an instance (:func:`composite_exact_forward`: the Gaussian, its depth
+    gpar[:, 5] and its window) lie in one cache line for float32 tables (64-byte records; 128 for
+    float64), instead of in four arrays (each instance's Gaussian is a random row of the table,
+    which outgrows the L2 cache). The exact forward kernel alone: 27.0-27.5 -> 24.0-25.0 ms single
+    threaded for 4k strands at 256 x 256 (AMD Zen 3), the same results."""
+    item = np.dtype(dtype).itemsize
+    rb = 64 if item == 4 else 128
+    raw = np.empty(G * rb + 64, np.uint8)
+    off = -raw.ctypes.data % 64
+    rec = raw[off:off + G * rb].reshape(G, rb)
+    w0 = 8 * item  # byte offsets: the Gaussian's 8 values, then (slope, v0), then the 4 window integers
+    gpar = rec.view(dtype)[:, 0:8]
+    wflt = rec.view(np.float32)[:, w0 // 4:w0 // 4 + 2]
+    wint = rec.view(np.int32)[:, w0 // 4 + 2:w0 // 4 + 6]
+    return gpar, wint, wflt
+
+
 @njit(cache=True, parallel=True)
-def gather_gaussians(order, gpar, covs, valid, frame):
-    """The Gaussians' rows in the order ``order`` (a [G] permutation, :func:`depth_order`), in one
-    parallel pass: (gpar [G, 8], covs [G, 3], valid [G], frame [G]) with row i that of Gaussian
-    order[i]."""
+def gather_gaussians(order, gpar, wint, wflt, frame, gs, ws, fs):
+    """The Gaussians' rows and windows in the order ``order`` (a [G] permutation,
+    :func:`depth_order`), in one parallel pass, into the records of :func:`gaussian_records`
+    (gs [G, 8], ws [G, 4] int32, fs [G, 2] float32: each record written whole at once); returns
+    frame [G] in that order. Record i is that of Gaussian order[i]."""
     G = order.shape[0]
-    gs = np.empty((G, 8), gpar.dtype)
-    cs = np.empty((G, 3), covs.dtype)
-    vs = np.empty(G, valid.dtype)
-    fs = np.empty(G, frame.dtype)
+    fr = np.empty(G, frame.dtype)
     for i in prange(G):
         ia = np.int64(order[min(i + GATHER_AHEAD, G - 1)])  # the rows read GATHER_AHEAD iterations later
         prefetch_row(gpar, ia)
-        prefetch_row(covs, ia)
+        prefetch_row(wint, ia)
+        prefetch_row(wflt, ia)
         j = np.int64(order[i])
         _copy_row(gs, i, gpar, j, 8)
-        _copy_row(cs, i, covs, j, 3)
-        vs[i] = valid[j]
-        fs[i] = frame[j]
-    return gs, cs, vs, fs
+        for c in range(4):
+            ws[i, c] = np.int32(wint[j, c])
+        fs[i, 0], fs[i, 1] = wflt[j, 0], wflt[j, 1]
+        fr[i] = frame[j]
+    return fr
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
@@ -176,12 +196,14 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
             (the only ones the backward pass reads).
         t_min: transmittance below which a pixel stops.
         order: [G] int64, the caller's index of each Gaussian (numbered here in depth order):
-            ``visible`` is set at order[g], in the caller's order.
+            ``visible`` is set at order[g], in the caller's order (after the tiles, in a pass of its
+            own: the random read of order[g] per visible instance was 3% of the kernel's time).
     """
     e_p, e_al, e_da = elems
     o_l, o_w, o_z, o_d = out
     L = tile
     amin, amax = consts[C_AMIN], consts[C_AMAX]
+    vis = np.zeros(gpar.shape[0], np.bool_)  # visibility in depth order: no random read of ``order`` per instance
     for wk in prange(work_start.shape[0] - 1):
         scratch = walk_scratch(L, zs)
         hl, zref2, lane, pw, hf, vlo, vhi, km, pix = scratch
@@ -213,11 +235,14 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                 alpha_and_slope(e_al[n:n + m], e_da[n:n + m], amin, amax)
                 o = np.uint64(n)  # the composited elements, moved down over the skipped ones
                 for kk in range(k, kb):
+                    e0, e1 = np.uint64(e_range[kk, 0]), np.uint64(e_range[kk, 1])
+                    e_range[kk, 0] = o
+                    if e1 == e0:  # (no row to read)
+                        e_range[kk, 1] = o
+                        continue
                     gk = sorted_g[kk]
                     z, c, s = gpar[gk, G_Z], gpar[gk, G_C], gpar[gk, G_S]
                     mw = 0.0
-                    e0, e1 = np.uint64(e_range[kk, 0]), np.uint64(e_range[kk, 1])
-                    e_range[kk, 0] = o
                     for e in range(e0, e1):
                         p = np.uint64(e_p[e])
                         tp = T[p]
@@ -243,7 +268,7 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                                 mw = max(mw, w)
                     e_range[kk, 1] = o
                     if mw >= vis_weight:
-                        visible[order[gk]] = True
+                        vis[gk] = True
                 n = np.int64(o)  # the next instances' elements follow the kept ones
                 k = kb
             p = 0
@@ -260,6 +285,9 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                         sums[b, y, x, 1] = acc[p, 1]
                         sums[b, y, x, 2] = acc[p, 2]
                     p += 1
+    for g in prange(vis.shape[0]):  # into the caller's order
+        if vis[g]:
+            visible[order[g]] = True
 
 
 @njit(**_PAR)
@@ -325,4 +353,4 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                 acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
 
 
-__all__ = ["depth_order", "gather_gaussians", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
+__all__ = ["depth_order", "gaussian_records", "gather_gaussians", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
