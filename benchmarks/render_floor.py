@@ -38,18 +38,18 @@ from vid2haircut.render.numba_kernels import walk_scratch, walk_tile  # noqa: E4
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def walk_only(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g, work_start, work_tiles,
+def walk_only(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g, boxes, work_start, work_tiles,
               width, height, tile, offsets, elems, e_range, out, vis_weight, visible, compress):
     """``numba_kernels.composite_forward``'s signature; only its step 1 (``walk_tile``, without z_ref)."""
     for wk in prange(work_start.shape[0] - 1):
         scratch = walk_scratch(tile, zs)
         for j in range(work_start[wk], work_start[wk + 1]):
             walk_tile(work_tiles[j], scratch, gpar, zs, wint, wflt, head, has_head, consts, False, tile_start,
-                      sorted_g, width, height, tile, offsets, elems, e_range, compress)
+                      sorted_g, boxes, width, height, tile, offsets, elems, e_range, compress)
 
 
 def _no_forward(*args) -> None:
-    args[17][:] = 0  # e_range: no elements (the backward stub reads nothing)
+    args[18][:] = 0  # e_range: no elements (the backward stub reads nothing)
 
 
 def _no_backward(*args) -> None:

@@ -96,7 +96,10 @@ def test_bin_windows_matches_a_python_reference(tile):
     z[::89] = np.nan
     ntx, nty = -(-W // tile), -(-H // tile)
     hmax = np.where(rng.random(frames * nty * ntx) < 0.3, rng.uniform(0.4, 0.8, frames * nty * ntx), np.inf)
-    gstart, inst_pos, tile_start, sorted_g = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax)
+    gstart, inst_pos, tile_start, sorted_g, boxes = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax, True)
+    no_boxes = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax, False)  # the same lists, no codes
+    assert all(np.array_equal(u, v) for u, v in zip(no_boxes[:4], (gstart, inst_pos, tile_start, sorted_g)))
+    assert no_boxes[4].shape == (0,)
 
     inst = []  # (tile, g) in Gaussian order
     for g in range(G):
@@ -129,3 +132,26 @@ def test_bin_windows_matches_a_python_reference(tile):
     assert np.array_equal(inst_pos, pos)
     # boxes beyond 2 x 2 tiles, boxes of up to 2 x 2, and Gaussians with no instance are all there
     assert (counts > 4).sum() > 50 and ((counts >= 1) & (counts <= 4)).sum() > 200 and (counts == 0).sum() > 200
+    # each instance's box code: its window's lanes (columns along u) and lines (rows along v) in its tile
+    fields = {"miss": 0, "hit": 0}
+    for i, (t, g) in enumerate(inst):
+        hz, ula, ncol, hgt = (int(v) for v in wint[g])
+        sl, v0 = wflt[g]
+        ty, tx = divmod(t % (nty * ntx), ntx)
+        x0, y0 = tx * tile, ty * tile
+        x1, y1 = min(x0 + tile, W) - 1, min(y0 + tile, H) - 1
+        tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
+        ua, ub = max(ula, tu0), min(ula + ncol - 1, tu1)
+        code = boxes[pos[i]]
+        lo = hi = None
+        if ub >= ua:
+            va, vb = nt.vstart(sl, ua, v0), nt.vstart(sl, ub, v0)
+            lo, hi = max(min(va, vb), tv0) - tv0, min(max(va, vb) + hgt - 1, tv1) - tv0
+        if lo is None or hi < lo:
+            assert code == nt.B_MISS, (t, g)
+            fields["miss"] += 1
+            continue
+        assert nt.box_fields(code) == (0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(hgt, tv1 - tv0 + 1)), (t, g)
+        assert nt.row_box(g, wint, wflt, x0, x1, y0, y1) == code, (t, g)  # the walk's own, from the rows
+        fields["hit"] += 1
+    assert fields["miss"] > 10 and fields["hit"] > 1000, fields

@@ -150,9 +150,11 @@ class _Plan:
         with _LOCK:
             _numba_threads()
             hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
-            self.gstart, self.inst_pos, self.tile_start, self.sorted_g = numba_tiles.bin_windows(
-                wint, wflt, frame, batch, width, height, TILE, z, hmax)
-            bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, width, height, TILE)
+            exact = t_min is not None  # (box codes for the exact model's walk: numba_tiles.bin_windows)
+            self.gstart, self.inst_pos, self.tile_start, self.sorted_g, boxes = numba_tiles.bin_windows(
+                wint, wflt, frame, batch, width, height, TILE, z, hmax, exact)
+            self.boxes = boxes if exact else None
+            bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, self.boxes, width, height, TILE)
         bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_simd)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
         self.capacity = int(bounds.sum())
@@ -201,8 +203,8 @@ class _FusedComposite(torch.autograd.Function):
         visible = np.zeros(gpar.shape[0], np.bool_)
         with _LOCK:
             nk.composite_forward(gpar, zs_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
-                                 plan.nbins, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
-                                 TILE, plan.offsets, elems, e_range, out, plan.vis_weight, visible,
+                                 plan.nbins, plan.tile_start, plan.sorted_g, plan.boxes, plan.work_start,
+                                 plan.work_tiles, W, H, TILE, plan.offsets, elems, e_range, out, plan.vis_weight, visible,
                                  numba_simd.USE_LINE16 and TILE == 16)  # numba_simd.line16: 16 lanes
         ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype = plan, gpar, elems, e_range, table.dtype
         visible_t = torch.from_numpy(visible)
@@ -256,8 +258,9 @@ def _exact_forward(ctx, table, plan):
     visible = np.zeros(gpar.shape[0], np.bool_)
     with _LOCK:
         ne.composite_exact_forward(gpar, z_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
-                                   plan.shade, plan.tile_start, plan.sorted_g, plan.work_start, plan.work_tiles, W, H,
-                                   TILE, plan.offsets, elems, e_range, out, sums, t_end, plan.vis_weight, visible,
+                                   plan.shade, plan.tile_start, plan.sorted_g, plan.boxes, plan.work_start,
+                                   plan.work_tiles, W, H, TILE, plan.offsets, elems, e_range, out, sums, t_end,
+                                   plan.vis_weight, visible,
                                    numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order)
     ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
     ctx.t_end = t_end

@@ -171,7 +171,7 @@ def alpha_and_slope(pw, hf, amin, amax):
 
 
 @njit(**_PAR)
-def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade, tile_start, sorted_g,
+def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade, tile_start, sorted_g, boxes,
                             work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, sums,
                             t_end, vis_weight, visible, compress, t_min, order):
     """Forward compositing of all tiles, front to back.
@@ -179,8 +179,8 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
     Args:
         gpar, zs, wint, wflt: the Gaussians' tables (:func:`.numba_tiles.bin_windows`; zs the
             depths, gpar's column 5), the Gaussians numbered front to back.
-        head, has_head, consts, tile_start, sorted_g, work_start, work_tiles, width, height, tile,
-            offsets, e_range, vis_weight, visible, compress: as for
+        head, has_head, consts, tile_start, sorted_g, boxes, work_start, work_tiles, width, height,
+            tile, offsets, e_range, vis_weight, visible, compress: as for
             :func:`.numba_kernels.composite_forward` (``consts``' second-silhouette ratio unused;
             sorted_g gives the Gaussian whose visibility an instance sets).
         shade: composite depth and direction (else the log transmittance only).
@@ -230,8 +230,8 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                         e_range[kk, 1] = n
                     break
                 kb = min(k + CHUNK, i1)
-                m = walk_lines(k, kb, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, False,
-                               lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_da, n, e_range, compress, lm)
+                m = walk_lines(k, kb, sorted_g, boxes, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2,
+                               False, lane, vlo, vhi, pw, hf, km, pix, elems, n, e_range, compress, lm)
                 alpha_and_slope(e_al[n:n + m], e_da[n:n + m], amin, amax)
                 o = np.uint64(n)  # the composited elements, moved down over the skipped ones
                 for kk in range(k, kb):
@@ -323,8 +323,13 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
             T = np.ones(npx)
             k1 = tile_start[t + 1]
             for k in range(tile_start[t], k1):
-                if k + PREFETCH < k1:  # a later instance's Gaussian row (the table outgrows the L2 cache)
-                    prefetch_row(gpar, sorted_g[k + PREFETCH])
+                kp = k + PREFETCH  # a later instance's Gaussian row, if it has elements (the table outgrows L2)
+                if kp < k1 and e_range[kp, 1] > e_range[kp, 0]:
+                    prefetch_row(gpar, sorted_g[kp])
+                if e_range[k, 1] == e_range[k, 0]:  # no element (most instances): no row to read
+                    for col in range(N_ACC):
+                        acc[k, col] = 0.0
+                    continue
                 gk = sorted_g[k]
                 z, c, s = gpar[gk, G_Z], gpar[gk, G_C], gpar[gk, G_S]
                 mx, my = gpar[gk, G_MX], gpar[gk, G_MY]

@@ -79,8 +79,8 @@ def walk_scratch(L, zs):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, with_zref, tile_start, sorted_g, width, height,
-              tile, offsets, elems, e_range, compress):
+def walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, with_zref, tile_start, sorted_g, boxes, width,
+              height, tile, offsets, elems, e_range, compress):
     """Step 1 of :func:`composite_forward` for tile ``t``: walk its windows (z_ref into ``scratch[1]``
     when ``with_zref``), listing its elements at ``offsets[t]``, and turn their power into d l / d
     power and l (and the second silhouette's, when ``consts`` has one).
@@ -94,8 +94,9 @@ def walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, with_zre
     L = tile
     load_head(head, has_head, b, x0, y0, width, height, L, hl)
     off = offsets[t]
-    n = walk_lines(tile_start[t], tile_start[t + 1], sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L,
-                   zref2, with_zref, lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress, None)
+    n = walk_lines(tile_start[t], tile_start[t + 1], sorted_g, boxes, wint, wflt, gpar, zs, hl, consts, x0, x1, y0,
+                   y1, L, zref2, with_zref, lane, vlo, vhi, pw, hf, km, pix, (e_p, e_al, e_la), off, e_range, compress,
+                   None)
     if consts[C_RATIO] > 0.0:
         alpha_and_l2(e_al[off:off + n], e_la[off:off + n], consts[C_AMIN], consts[C_AMAX], consts[C_RATIO],
                      e_dl2[off:off + n], e_la2[off:off + n])
@@ -105,7 +106,7 @@ def walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, with_zre
 
 
 @njit(**_PAR)
-def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g,
+def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_start, sorted_g, boxes,
                       work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, vis_weight, visible,
                       compress):
     """Forward compositing of all tiles.
@@ -116,7 +117,8 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
             wflt: window tables (:mod:`.numba_tiles`). head: [B, H, W] head depth (same dtype;
             used when ``has_head``). consts: [4] (log opacity, alpha_min, alpha_max, the second
             silhouette's opacity over the first's: 0 for none).
-        nbins: depth bins (1: silhouette only). tile_start, sorted_g: instances per tile;
+        nbins: depth bins (1: silhouette only). tile_start, sorted_g, boxes: instances per tile
+            (:func:`.numba_tiles.bin_windows`);
         work_start, work_tiles: tiles per worker (:func:`.numba_tiles.assign_tiles`).
         offsets: [NT] first element slot of each tile (bounds from :func:`.numba_walk.tile_bounds`).
         elems: (pixel int32, bin int32, d l / d power, l, d l2 / d power, l2 (input dtype))
@@ -141,8 +143,8 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
         for j in range(work_start[wk], work_start[wk + 1]):
             t = work_tiles[j]
             b, x0, x1, y0, y1, off, n = walk_tile(t, scratch, gpar, zs, wint, wflt, head, has_head, consts, nbins > 1,
-                                                  tile_start, sorted_g, width, height, tile, offsets, elems, e_range,
-                                                  compress)
+                                                  tile_start, sorted_g, boxes, width, height, tile, offsets, elems,
+                                                  e_range, compress)
             tw = x1 - x0 + 1
             npx = tw * (y1 - y0 + 1)
             i0, i1 = tile_start[t], tile_start[t + 1]

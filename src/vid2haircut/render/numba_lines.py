@@ -35,7 +35,7 @@ from numba import njit
 
 from vid2haircut.render.numba_math import lane_cast
 from vid2haircut.render.numba_simd import line8, line16, prefetch_row
-from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, vstart, vstart32
+from vid2haircut.render.numba_tiles import B_MISS, W_HGT, W_SLOPE, W_V0, box_fields, row_box, vstart32
 from vid2haircut.render.numba_walk import PREFETCH
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
@@ -48,45 +48,26 @@ L_DU, L_QA, L_QB = range(3)
 
 
 @njit(**_INL)
-def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi, live):
-    """Instance g in the tile: (lay, first line, last line, mean v - tile v0, q_vv, the lanes its
-    line needs: 0 (lanes 0-7), 8 (lanes 8-15) or -1 (both halves), the bits of its lanes ua..ub
-    (uint32, bit i: lane i)); fills
-    the lane arrays (``lane``, and vlo / vhi [L] int32: the window rows of each lane, tile
-    relative; FAR / -FAR outside the window). Lines are tile relative; last < first when the
-    window misses the tile, or when ``live`` (see :func:`walk_lines`) is given and the window's
-    box (its lines by its lanes) holds no live pixel: then the lane arrays are not filled."""
-    hz = wint[g, W_HZ] != 0
-    lay = 0 if hz else 1
-    if hz:
-        tu0, tu1, tv0, tv1 = x0, x1, y0, y1
+def _setup(g, lay, ua, ub, wint, wflt, gpar, x0, y0, L, lane, vlo, vhi):
+    """Instance of Gaussian g in the tile, in layout ``lay`` with lanes ua..ub (tile relative; from
+    its box code, :func:`.numba_tiles.box_fields`): fills the lane arrays (``lane``, and vlo / vhi
+    [L] int32: the window rows of each lane, tile relative; FAR / -FAR outside the window) and
+    returns (mean v - tile v0, q_vv)."""
+    if lay == 0:
+        tu0, tv0 = x0, y0
         mu, mv, qu, qv = gpar[g, G_MX], gpar[g, G_MY], gpar[g, G_QXX], gpar[g, G_QYY]
     else:
-        tu0, tu1, tv0, tv1 = y0, y1, x0, x1
+        tu0, tv0 = y0, x0
         mu, mv, qu, qv = gpar[g, G_MY], gpar[g, G_MX], gpar[g, G_QYY], gpar[g, G_QXX]
     qxy = gpar[g, G_QXY]
-    ua = max(wint[g, W_ULO], tu0)
-    ub = min(wint[g, W_ULO] + wint[g, W_NCOL] - 1, tu1)
     h = wint[g, W_HGT]
     sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
     mvr = mv - lane_cast(tv0, mv)
-    if ub < ua:
-        return lay, 0, -1, mvr, qv, -1, np.uint32(0)
-    va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
-    lo = max(min(va, vb), tv0) - tv0
-    hi = min(max(va, vb) + h - 1, tv1) - tv0
-    lanes0 = 0 if ub - tu0 < 8 else (8 if ua - tu0 >= 8 else -1)
-    umask = np.uint32(((1 << (ub - tu0 + 1)) - 1) ^ ((1 << (ua - tu0)) - 1))  # bits ua..ub, tile relative
-    if live is not None:
-        hit = np.uint32(0)
-        for r in range(lo, hi + 1):
-            hit |= live[lay, r]
-        if not hit & umask:
-            return lay, 0, -1, mvr, qv, -1, np.uint32(0)
     # the lanes in int32 (vstart32; sums wrap as the int32 stores of the int64 sums did): the same window
     # rows wherever they lie within +-2^30, in a loop that LLVM vectorises without AVX-512DQ's
     # float <-> int64 conversions
-    u0, ua32, ub32, tv032, hm1 = np.int32(tu0), np.int32(ua), np.int32(ub), np.int32(tv0), np.int32(h - 1)
+    u0, ua32, ub32 = np.int32(tu0), np.int32(tu0 + ua), np.int32(tu0 + ub)
+    tv032, hm1 = np.int32(tv0), np.int32(h - 1)
     for i in range(L):
         u = np.int32(u0 + np.int32(i))
         vs = np.int32(vstart32(sl, u, v0) - tv032)
@@ -97,7 +78,7 @@ def _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi, live):
         lane[L_DU, i] = d
         lane[L_QA, i] = qu * d * d
         lane[L_QB, i] = (qxy + qxy) * d
-    return lay, lo, hi, mvr, qv, lanes0, umask
+    return mvr, qv
 
 
 @njit(**_INL)
@@ -113,12 +94,16 @@ def load_head(head, has_head, b, x0, y0, width, height, L, hl):
 
 
 @njit(**_INL)
-def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, with_zref,
-               lane, vlo, vhi, pw, hf, km, pix, e_p, e_al, e_la, off, e_range, compress, live):
+def walk_lines(i0, i1, sorted_g, boxes, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y1, L, zref2, with_zref,
+               lane, vlo, vhi, pw, hf, km, pix, elems, off, e_range, compress, live):
     """Walk the windows of instances i0:i1 line by line: z_ref over the whole windows into both
     layouts of ``zref2`` [2 L L] (when ``with_zref``; filled with +inf first), and the candidate
-    elements into e_*[off:off + n] (pixel, power, head factor), instance k's at
-    e_range[k, 0]:e_range[k, 1]; returns n.
+    elements into ``elems`` = (e_p, e_al, e_la)[off:off + n] (pixel, power, head factor), instance
+    k's at e_range[k, 0]:e_range[k, 1]; returns n. ``boxes``: the instances' box codes
+    (:func:`vid2haircut.render.numba_tiles.bin_windows`: each window's lines and lanes in its tile,
+    worked out at binning), so that an instance whose window misses the tile, or (``live``) covers
+    no live pixel, costs no read of its Gaussian's rows; or None: worked out here from the rows
+    (:func:`vid2haircut.render.numba_tiles.row_box`; the binned model walks every instance).
 
     Candidates are the window pixels inside the ellipse power > log(alpha_min) - 1e-3 that the
     head does not hide; alpha > alpha_min is then tested exactly by
@@ -136,8 +121,8 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     ua..ub) holds no live pixel is not walked (an empty range), nor is a line whose lanes hold
     none, and the lanes of stopped pixels are not kept (26% of the 1.39 M elements listed on the
     4k-strand frame before). The rows of instance k's Gaussian sorted_g[k] are read from ``wint``,
-    ``wflt``, ``gpar`` and ``zs``, those of instance k + PREFETCH prefetched (also past ``i1``: the
-    exact model walks a tile a few instances at a time).
+    ``wflt``, ``gpar`` and ``zs`` when it is walked, those of instance k + PREFETCH prefetched (also
+    past ``i1``: the exact model walks a tile a few instances at a time).
     """
     tw = x1 - x0 + 1
     cut = lane_cast(math.log(consts[1]) - 1e-3, zs[0])  # power > cut: inside the ellipse
@@ -147,18 +132,32 @@ def walk_lines(i0, i1, sorted_g, wint, wflt, gpar, zs, hl, consts, x0, x1, y0, y
     if with_zref:
         for p in range(2 * L * L):
             zref2[p] = np.inf
+    e_p, e_al, e_la = elems
     packed = live is not None
     n = off
     for k in range(i0, i1):
         e_range[k, 0] = n
+        e_range[k, 1] = n
         if k + PREFETCH < sorted_g.shape[0]:  # a later instance's Gaussian's rows, fetched while this one is walked
             gn = sorted_g[k + PREFETCH]
             prefetch_row(gpar, gn)
             prefetch_row(wint, gn)
             prefetch_row(wflt, gn)
             prefetch_row(zs, gn)
+        c = boxes[k] if boxes is not None else row_box(sorted_g[k], wint, wflt, x0, x1, y0, y1)
+        if c == B_MISS:  # the window misses the tile
+            continue
+        lay, lo, hi, ua, ub, _h = box_fields(c)
+        lanes0 = 0 if ub < 8 else (8 if ua >= 8 else -1)  # the lanes a line needs: 0-7, 8-15 or both (-1)
+        umask = np.uint32(((1 << (ub + 1)) - 1) ^ ((1 << ua) - 1))  # bits ua..ub
+        if packed:  # no live pixel in the window's box (its lines by its lanes): not walked
+            hit = np.uint32(0)
+            for r in range(lo, hi + 1):
+                hit |= live[lay, r]
+            if not hit & umask:
+                continue
         g = sorted_g[k]
-        lay, lo, hi, mvr, qv, lanes0, umask = _setup(g, wint, wflt, gpar, x0, x1, y0, y1, L, lane, vlo, vhi, live)
+        mvr, qv = _setup(g, lay, ua, ub, wint, wflt, gpar, x0, y0, L, lane, vlo, vhi)
         z, zg = gpar[g, G_Z], zs[g]
         keep_any = qv > zero  # else degenerate: z_ref only
         # pixel index in the tile of lane i of line r: r * sr + i * si

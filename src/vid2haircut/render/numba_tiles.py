@@ -51,6 +51,74 @@ def vstart32(slope, u, v0):
     return i + np.int32(t > np.float32(i))
 
 
+# fields of an instance's box code (uint32, :func:`bin_windows`): its window inside its tile, tile
+# relative, with tiles of at most 32 pixels a side
+B_MISS = np.uint32(1 << 31)
+"""Set in the code of an instance whose window (its columns in the tile, and their rows) misses the tile."""
+
+
+@njit(cache=True, inline="always")
+def box_code(lay, lo, hi, ua, ub, hmin):
+    """The box code of an instance: layout ``lay`` (0: u = x, the window horizontal; 1: u = y), its
+    lines lo..hi (rows of the window within the tile, along v), its lanes ua..ub (columns, along u)
+    and ``hmin`` = min(window height, tile extent along v), each tile relative (< 32, ``hmin`` <= 32)."""
+    return (np.uint32(lay) | (np.uint32(lo) << np.uint32(1)) | (np.uint32(hi) << np.uint32(6))
+            | (np.uint32(ua) << np.uint32(11)) | (np.uint32(ub) << np.uint32(16)) | (np.uint32(hmin) << np.uint32(21)))
+
+
+@njit(cache=True, inline="always")
+def box_fields(c):
+    """(lay, lo, hi, ua, ub, hmin) of box code ``c`` (:func:`box_code`; not :data:`B_MISS`)."""
+    m = np.uint32(31)
+    return (np.int64(c & np.uint32(1)), np.int64((c >> np.uint32(1)) & m), np.int64((c >> np.uint32(6)) & m),
+            np.int64((c >> np.uint32(11)) & m), np.int64((c >> np.uint32(16)) & m),
+            np.int64((c >> np.uint32(21)) & np.uint32(63)))
+
+
+@njit(cache=True, inline="always")
+def _box_of(hz, ua, ub, h, va, vb, tu0, tv0, tv1):
+    """Box code (:func:`box_code`, or :data:`B_MISS`) of a window's columns ua..ub (ub >= ua) in a
+    tile whose u range starts at tu0 and whose v range is tv0..tv1, from the window's height h and
+    its first rows va, vb at ua and ub (:func:`vstart`, monotone in u)."""
+    lo = max(min(va, vb), tv0) - tv0
+    hi = min(max(va, vb) + h - 1, tv1) - tv0
+    if hi < lo:
+        return B_MISS
+    return box_code(0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(h, tv1 - tv0 + 1))
+
+
+@njit(cache=True, inline="always")
+def _instance_box(hz, ula, ubr, h, sl, v0, va_w, vb_w, tx, ty, width, height, tile):
+    """Box code of a window in tile (tx, ty) (:func:`_box_of`): what the window walk
+    (:func:`vid2haircut.render.numba_lines.walk_lines`) takes to start an instance, worked out
+    once at binning (``bin_windows(..., with_boxes=True)``) instead of from the Gaussian's row in
+    every walk. The window: ``hz`` (u = x), its columns ula..ubr, height h, line (sl, v0) and
+    va_w, vb_w = vstart at ula and ubr (recomputed only for a column range the tile cuts)."""
+    x0, y0 = tx * tile, ty * tile
+    x1, y1 = min(x0 + tile, width) - 1, min(y0 + tile, height) - 1
+    tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
+    ua, ub = max(ula, tu0), min(ubr, tu1)
+    if ub < ua:
+        return B_MISS
+    va = va_w if ua == ula else vstart(sl, ua, v0)
+    vb = vb_w if ub == ubr else vstart(sl, ub, v0)
+    return _box_of(hz, ua, ub, h, va, vb, tu0, tv0, tv1)
+
+
+@njit(cache=True, inline="always")
+def row_box(g, wint, wflt, x0, x1, y0, y1):
+    """Box code of window g in the tile of pixels x0..x1, y0..y1, from its rows (what
+    :func:`bin_windows` lists with ``with_boxes``)."""
+    hz = wint[g, W_HZ] != 0
+    tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
+    ula = np.int64(wint[g, W_ULO])
+    ua, ub = max(ula, tu0), min(ula + np.int64(wint[g, W_NCOL]) - 1, tu1)
+    if ub < ua:
+        return B_MISS
+    sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
+    return _box_of(hz, ua, ub, np.int64(wint[g, W_HGT]), vstart(sl, ua, v0), vstart(sl, ub, v0), tu0, tv0, tv1)
+
+
 @njit(cache=True, parallel=True)
 def tile_head_max(head, has_head, nframes, width, height, tile):
     """[NT] largest head depth over the pixels of each tile (+inf without a head; the dtype of
@@ -119,7 +187,7 @@ def _tile_box(g, wint, wflt, width, height, tile, shift):
 
 
 @njit(cache=True, parallel=True)
-def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
+def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, with_boxes):
     """List the instances of every tile.
 
     Args:
@@ -133,8 +201,15 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
     Returns:
         gstart [G + 1] (instances of Gaussian g are gstart[g]:gstart[g + 1] in Gaussian order),
         inst_pos [n] (position of each of them in the tile order), tile_start [NT + 1] (instances
-        of tile t are tile_start[t]:tile_start[t + 1] in tile order), sorted_g [n] (their Gaussian).
+        of tile t are tile_start[t]:tile_start[t + 1] in tile order), sorted_g [n] (their Gaussian),
+        boxes: with ``with_boxes``, [n] uint32 in tile order: each instance's window within its tile
+        (:func:`box_code`, or :data:`B_MISS`; tiles of at most 32 pixels a side), else empty. The
+        exact model takes them (its walk then reads no row of an instance that covers no live
+        pixel; 1 ms more binning, 0.8 ms less tile bounds, ~1.5 ms less forward for 4k strands at
+        256 x 256); the binned model, which walks every instance, works them out from the rows.
     """
+    if tile > 32:
+        raise ValueError("bin_windows: tiles of at most 32 pixels a side (box codes)")
     G = wint.shape[0]
     ntx = (width + tile - 1) // tile
     nty = (height + tile - 1) // tile
@@ -168,17 +243,32 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
         gstart[g + 1] = gstart[g] + cnt[g]
     n = gstart[G]
     inst_tile = np.empty(n, np.int64)
+    inst_code = np.empty(n if with_boxes else 0, np.uint32)
     for g in prange(G):
         j, j1 = gstart[g], gstart[g + 1]
         if j == j1:
             continue
         bx0, bx1, by0, by1 = box[g, 0], box[g, 1], box[g, 2], box[g, 3]
         zg, row0 = z[g], frame[g] * nty
+        if not with_boxes:
+            for ty in range(by0, by1 + 1):
+                for tx in range(bx0, bx1 + 1):
+                    t = (row0 + ty) * ntx + tx
+                    if j < j1 and not zg >= hmax[t]:
+                        inst_tile[j] = t
+                        j += 1
+            continue
+        hz = wint[g, W_HZ] != 0
+        ula, h = np.int64(wint[g, W_ULO]), np.int64(wint[g, W_HGT])
+        ubr = ula + np.int64(wint[g, W_NCOL]) - 1
+        sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
+        va_w, vb_w = vstart(sl, ula, v0), vstart(sl, ubr, v0)
         for ty in range(by0, by1 + 1):
             for tx in range(bx0, bx1 + 1):
                 t = (row0 + ty) * ntx + tx
                 if j < j1 and not zg >= hmax[t]:
                     inst_tile[j] = t
+                    inst_code[j] = _instance_box(hz, ula, ubr, h, sl, v0, va_w, vb_w, tx, ty, width, height, tile)
                     j += 1
     # counting sort of the instances by tile, stable (Gaussian order inside a tile), in parallel over
     # CH chunks of instances: per-chunk tile counts, then each chunk's first slot in every tile
@@ -202,6 +292,7 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
             cur += k
     sorted_g = np.empty(n, np.int64)
     inst_pos = np.empty(n, np.int64)
+    boxes = np.empty(n if with_boxes else 0, np.uint32)
     for c in prange(CH):
         cursor = counts[c].copy()
         g = np.searchsorted(gstart, c * step, side="right") - 1  # Gaussian of the chunk's first instance
@@ -211,8 +302,10 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax):
             pos = cursor[inst_tile[j]]
             cursor[inst_tile[j]] += 1
             sorted_g[pos] = g
+            if with_boxes:
+                boxes[pos] = inst_code[j]
             inst_pos[j] = pos
-    return gstart, inst_pos, tile_start, sorted_g
+    return gstart, inst_pos, tile_start, sorted_g, boxes
 
 
 @njit(cache=True)

@@ -14,7 +14,7 @@ from numba import njit, prange
 
 from vid2haircut.render.numba_math import lane_cast, lane_exp, lane_log1m, vexp
 from vid2haircut.render.numba_simd import prefetch_row
-from vid2haircut.render.numba_tiles import W_HGT, W_HZ, W_NCOL, W_ULO
+from vid2haircut.render.numba_tiles import B_MISS, W_HGT, W_HZ, W_NCOL, W_ULO, box_fields
 
 JIT = dict(cache=True, error_model="numpy")
 # columns of the Gaussian table ``gpar`` [G, 8] (input dtype)
@@ -44,31 +44,34 @@ def tile_box(t, width, height, tile):
     return b, x0, min(x0 + tile, width) - 1, y0, min(y0 + tile, height) - 1
 
 
-@njit(**JIT)
-def _window_cols(g, wint, x0, x1, y0, y1):
-    """Whether u = x, the columns ua..ub of window g inside the tile and the tile's v range."""
-    hz = wint[g, W_HZ] != 0
-    tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
-    ua = max(wint[g, W_ULO], tu0)
-    ub = min(wint[g, W_ULO] + wint[g, W_NCOL] - 1, tu1)
-    return hz, ua, ub, tv0, tv1
-
-
 @njit(cache=True, parallel=True, error_model="numpy")
-def tile_bounds(tile_start, sorted_g, wint, width, height, tile):
-    """[NT] upper bound of each tile's element count (its window elements)."""
+def tile_bounds(tile_start, sorted_g, wint, boxes, width, height, tile):
+    """[NT] upper bound of each tile's element count (its window elements: the window's columns
+    in the tile times its height, at most the tile's). ``boxes``: the instances' box codes
+    (:func:`.numba_tiles.bin_windows`), read in order, no Gaussian rows; or None: from the rows
+    of ``wint``, prefetched."""
     NT = tile_start.shape[0] - 1
     bounds = np.zeros(NT, np.int64)
     for t in prange(NT):
-        b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
         cap = 0
-        for k in range(tile_start[t], tile_start[t + 1]):
-            if k + PREFETCH < tile_start[t + 1]:
-                prefetch_row(wint, sorted_g[k + PREFETCH])
-            g = sorted_g[k]
-            hz, ua, ub, tv0, tv1 = _window_cols(g, wint, x0, x1, y0, y1)
-            if ub >= ua:
-                cap += (ub - ua + 1) * min(wint[g, W_HGT], tv1 - tv0 + 1)
+        if boxes is not None:
+            for k in range(tile_start[t], tile_start[t + 1]):
+                c = boxes[k]
+                if c != B_MISS:
+                    lay, lo, hi, ua, ub, hmin = box_fields(c)
+                    cap += (ub - ua + 1) * hmin
+        else:
+            b, x0, x1, y0, y1 = tile_box(t, width, height, tile)
+            for k in range(tile_start[t], tile_start[t + 1]):
+                if k + PREFETCH < tile_start[t + 1]:
+                    prefetch_row(wint, sorted_g[k + PREFETCH])
+                g = sorted_g[k]
+                hz = wint[g, W_HZ] != 0
+                tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
+                ua = max(wint[g, W_ULO], tu0)
+                ub = min(wint[g, W_ULO] + wint[g, W_NCOL] - 1, tu1)
+                if ub >= ua:
+                    cap += (ub - ua + 1) * min(wint[g, W_HGT], tv1 - tv0 + 1)
         bounds[t] = cap
     return bounds
 
