@@ -256,14 +256,15 @@ def _exact_forward(ctx, table, plan):
     elems = (np.empty(cap, np.int32), np.empty(cap, dt), np.empty(cap, dt))
     e_range = np.empty((plan.sorted_g.shape[0], 2), np.int64)
     visible = np.zeros(gpar.shape[0], np.bool_)
+    tile_kept = np.zeros(plan.tile_start.shape[0] - 1, np.int64)
     with _LOCK:
         ne.composite_exact_forward(gpar, z_np, plan.wint, plan.wflt, plan.head, plan.has_head, plan.consts,
                                    plan.shade, plan.tile_start, plan.sorted_g, plan.boxes, plan.work_start,
                                    plan.work_tiles, W, H, TILE, plan.offsets, elems, e_range, out, sums, t_end,
                                    plan.vis_weight, visible,
-                                   numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order)
+                                   numba_simd.USE_LINE16 and TILE == 16, plan.t_min, plan.order, tile_kept)
     ctx.plan, ctx.gpar, ctx.elems, ctx.e_range, ctx.dtype, ctx.sums = plan, gpar, elems, e_range, table.dtype, sums
-    ctx.t_end = t_end
+    ctx.t_end, ctx.tile_kept = t_end, tile_kept
     visible_t = torch.from_numpy(visible)  # in the table's order (the kernel maps it back)
     ctx.mark_non_differentiable(visible_t)
     ctx.set_materialize_grads(False)
@@ -279,12 +280,16 @@ def _exact_backward(ctx, g_l, g_w, g_z, g_d):
     B, H, W = plan.shape
     shapes = ((B, H, W), (B, H, W), (B, H, W) if plan.shade else (0, 0, 0), (B, H, W, 2) if plan.shade else (0, 0, 0, 0))
     g = _grad_images((g_l, g_w, g_z, g_d), shapes, ctx.gpar.dtype)
-    acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))
+    kept = ctx.tile_kept  # rows of sums for the instances with elements only, tile by tile
+    acc_start = np.concatenate([[0], np.cumsum(kept)[:-1]]).astype(np.int64)
+    acc = np.empty((int(kept.sum()), nk.N_ACC))
+    slot = np.empty(plan.sorted_g.shape[0], np.int32)
     grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
         ne.composite_exact_backward(ctx.gpar, plan.shade, plan.tile_start, plan.sorted_g, plan.work_start,
-                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, ctx.t_end, acc)
-        nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order)  # in the table's order
+                                    plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, ctx.t_end, acc,
+                                    acc_start, slot)
+        nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order, slot)  # in the table's order
     return torch.from_numpy(grads).to(ctx.dtype), None, None
 
 

@@ -173,7 +173,7 @@ def alpha_and_slope(pw, hf, amin, amax):
 @njit(**_PAR)
 def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade, tile_start, sorted_g, boxes,
                             work_start, work_tiles, width, height, tile, offsets, elems, e_range, out, sums,
-                            t_end, vis_weight, visible, compress, t_min, order):
+                            t_end, vis_weight, visible, compress, t_min, order, tile_kept):
     """Forward compositing of all tiles, front to back.
 
     Args:
@@ -198,6 +198,8 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
         order: [G] int64, the caller's index of each Gaussian (numbered here in depth order):
             ``visible`` is set at order[g], in the caller's order (after the tiles, in a pass of its
             own: the random read of order[g] per visible instance was 3% of the kernel's time).
+        tile_kept: [NT] int64 zeros, filled with each tile's count of instances with elements (the
+            backward pass gives only those a row of sums, :func:`composite_exact_backward`).
     """
     e_p, e_al, e_da = elems
     o_l, o_w, o_z, o_d = out
@@ -223,6 +225,7 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
             n = offsets[t]
             i0, i1 = tile_start[t], tile_start[t + 1]
             k = i0
+            kept = 0
             while k < i1:
                 if live == 0:  # every pixel has stopped: the rest of the tile is not walked
                     for kk in range(k, i1):
@@ -267,10 +270,12 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
                                 acc[p, 2] += w * s
                                 mw = max(mw, w)
                     e_range[kk, 1] = o
+                    kept += np.int64(o > e_range[kk, 0])
                     if mw >= vis_weight:
                         vis[gk] = True
                 n = np.int64(o)  # the next instances' elements follow the kept ones
                 k = kb
+            tile_kept[t] = kept
             p = 0
             for y in range(y0, y1 + 1):
                 for x in range(x0, x1 + 1):
@@ -292,15 +297,19 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
 
 @njit(**_PAR)
 def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work_tiles, width, height, tile, elems,
-                             e_range, grad, sums, t_end, acc):
+                             e_range, grad, sums, t_end, acc, acc_start, slot):
     """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`
     (every one of them composited).
 
     Args:
         grad: the upstream gradients (log T, silhouette, sum w z, direction sums) in the table's
             dtype (summed in float64; the last two read with ``shade`` only); sums, t_end: the
-            forward's; acc: [n_instances, 8] filled (see :data:`.numba_kernels.N_ACC`); the rest as
-            given to the forward kernel.
+            forward's; acc: [n, 8] filled (see :data:`.numba_kernels.N_ACC`), one row per instance
+            with elements (n of them), tile t's from row acc_start[t] on (the forward's tile_kept,
+            summed), in instance order; slot: [n_instances] int32 filled with each instance's row
+            (-1: none; :func:`.numba_kernels.reduce_gradients`). Rows for the 2/3 of the instances
+            without elements (4k strands at 256 x 256) cost their writes here and their reads in
+            the reduction. The rest as given to the forward kernel.
     """
     e_p, e_al, e_da = elems
     g_l, g_w, g_z, g_d = grad
@@ -322,13 +331,13 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                     Q[p] = gl[1, p] * sums[b, y, x, 0] + gl[2, p] * sums[b, y, x, 1] + gl[3, p] * sums[b, y, x, 2]
             T = np.ones(npx)
             k1 = tile_start[t + 1]
+            r = acc_start[t]
             for k in range(tile_start[t], k1):
                 kp = k + PREFETCH  # a later instance's Gaussian row, if it has elements (the table outgrows L2)
                 if kp < k1 and e_range[kp, 1] > e_range[kp, 0]:
                     prefetch_row(gpar, sorted_g[kp])
-                if e_range[k, 1] == e_range[k, 0]:  # no element (most instances): no row to read
-                    for col in range(N_ACC):
-                        acc[k, col] = 0.0
+                if e_range[k, 1] == e_range[k, 0]:  # no element (most instances): no row to read or write
+                    slot[k] = -1
                     continue
                 gk = sorted_g[k]
                 z, c, s = gpar[gk, G_Z], gpar[gk, G_C], gpar[gk, G_S]
@@ -354,8 +363,10 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                     s2 += gp * dx * dx
                     s3 += gp * dx * dy
                     s4 += gp * dy * dy
-                acc[k, 0], acc[k, 1], acc[k, 2], acc[k, 3], acc[k, 4] = s0, s1, s2, s3, s4
-                acc[k, 5], acc[k, 6], acc[k, 7] = sz, sc, ss
+                acc[r, 0], acc[r, 1], acc[r, 2], acc[r, 3], acc[r, 4] = s0, s1, s2, s3, s4
+                acc[r, 5], acc[r, 6], acc[r, 7] = sz, sc, ss
+                slot[k] = r
+                r += 1
 
 
 __all__ = ["depth_order", "gaussian_records", "gather_gaussians", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
