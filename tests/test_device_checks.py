@@ -58,9 +58,9 @@ def test_render_floor_walk_lists_the_renderers_elements(capsys):
 
     def both(*args):
         real(*args)
-        elems, e_range = args[16], args[17]
+        elems, e_range = args[17], args[18]
         copies = tuple(np.zeros_like(a) for a in elems), np.zeros_like(e_range)
-        render_floor.walk_only(*args[:16], *copies, *args[18:])
+        render_floor.walk_only(*args[:17], *copies, *args[19:])
         seen.append((elems, e_range) + copies)
 
     numba_kernels.composite_forward = both
