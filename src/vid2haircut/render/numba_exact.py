@@ -19,7 +19,10 @@ results, as the compositing skips such elements anyway; on the 4k-strand benchma
 instances with elements fall from 132,445 to 81,730 and the elements listed from 2.52 M to 1.39 M).
 The kernels read each instance's Gaussian rows through ``sorted_g``, prefetched a few instances
 ahead (:data:`.numba_walk.PREFETCH`; a copy of the rows per instance in tile order, written by the
-binning, cost more than it saved: binning 4.4 -> 2.9 ms, forward and backward +0.8 ms without it).
+binning, cost more than it saved: binning 4.4 -> 2.9 ms, forward and backward +0.8 ms without it),
+from one 64-byte record per Gaussian (:func:`gaussian_records`: its row, depth and window in one
+cache line), and only for instances whose box code (:func:`.numba_tiles.box_code`, worked out at
+binning) covers a live pixel.
 The log transmittance log T(p) and the silhouette 1 - T(p) are outputs.
 
 Backward (:func:`composite_exact_backward`), from the kept elements in the same order: with
