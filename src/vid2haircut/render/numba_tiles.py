@@ -76,39 +76,10 @@ def box_fields(c):
 
 
 @njit(cache=True, inline="always")
-def _box_of(hz, ua, ub, h, va, vb, tu0, tv0, tv1):
-    """Box code (:func:`box_code`, or :data:`B_MISS`) of a window's columns ua..ub (ub >= ua) in a
-    tile whose u range starts at tu0 and whose v range is tv0..tv1, from the window's height h and
-    its first rows va, vb at ua and ub (:func:`vstart`, monotone in u)."""
-    lo = max(min(va, vb), tv0) - tv0
-    hi = min(max(va, vb) + h - 1, tv1) - tv0
-    if hi < lo:
-        return B_MISS
-    return box_code(0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(h, tv1 - tv0 + 1))
-
-
-@njit(cache=True, inline="always")
-def _instance_box(hz, ula, ubr, h, sl, v0, va_w, vb_w, tx, ty, width, height, tile):
-    """Box code of a window in tile (tx, ty) (:func:`_box_of`): what the window walk
-    (:func:`vid2haircut.render.numba_lines.walk_lines`) takes to start an instance, worked out
-    once at binning (``bin_windows(..., with_boxes=True)``) instead of from the Gaussian's row in
-    every walk. The window: ``hz`` (u = x), its columns ula..ubr, height h, line (sl, v0) and
-    va_w, vb_w = vstart at ula and ubr (recomputed only for a column range the tile cuts)."""
-    x0, y0 = tx * tile, ty * tile
-    x1, y1 = min(x0 + tile, width) - 1, min(y0 + tile, height) - 1
-    tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
-    ua, ub = max(ula, tu0), min(ubr, tu1)
-    if ub < ua:
-        return B_MISS
-    va = va_w if ua == ula else vstart(sl, ua, v0)
-    vb = vb_w if ub == ubr else vstart(sl, ub, v0)
-    return _box_of(hz, ua, ub, h, va, vb, tu0, tv0, tv1)
-
-
-@njit(cache=True, inline="always")
 def row_box(g, wint, wflt, x0, x1, y0, y1):
-    """Box code of window g in the tile of pixels x0..x1, y0..y1, from its rows (what
-    :func:`bin_windows` lists with ``with_boxes``)."""
+    """Box code (:func:`box_code`, or :data:`B_MISS`) of window g in the tile of pixels x0..x1,
+    y0..y1, from its rows: what the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`)
+    takes to start an instance, listed by :func:`bin_windows` with ``with_boxes``."""
     hz = wint[g, W_HZ] != 0
     tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
     ula = np.int64(wint[g, W_ULO])
@@ -116,7 +87,13 @@ def row_box(g, wint, wflt, x0, x1, y0, y1):
     if ub < ua:
         return B_MISS
     sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
-    return _box_of(hz, ua, ub, np.int64(wint[g, W_HGT]), vstart(sl, ua, v0), vstart(sl, ub, v0), tu0, tv0, tv1)
+    va, vb = vstart(sl, ua, v0), vstart(sl, ub, v0)  # vstart is monotone in u
+    h = np.int64(wint[g, W_HGT])
+    lo = max(min(va, vb), tv0) - tv0
+    hi = min(max(va, vb) + h - 1, tv1) - tv0
+    if hi < lo:
+        return B_MISS
+    return box_code(0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(h, tv1 - tv0 + 1))
 
 
 @njit(cache=True, parallel=True)
@@ -250,25 +227,15 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, with_b
             continue
         bx0, bx1, by0, by1 = box[g, 0], box[g, 1], box[g, 2], box[g, 3]
         zg, row0 = z[g], frame[g] * nty
-        if not with_boxes:
-            for ty in range(by0, by1 + 1):
-                for tx in range(bx0, bx1 + 1):
-                    t = (row0 + ty) * ntx + tx
-                    if j < j1 and not zg >= hmax[t]:
-                        inst_tile[j] = t
-                        j += 1
-            continue
-        hz = wint[g, W_HZ] != 0
-        ula, h = np.int64(wint[g, W_ULO]), np.int64(wint[g, W_HGT])
-        ubr = ula + np.int64(wint[g, W_NCOL]) - 1
-        sl, v0 = wflt[g, W_SLOPE], wflt[g, W_V0]
-        va_w, vb_w = vstart(sl, ula, v0), vstart(sl, ubr, v0)
         for ty in range(by0, by1 + 1):
             for tx in range(bx0, bx1 + 1):
                 t = (row0 + ty) * ntx + tx
                 if j < j1 and not zg >= hmax[t]:
                     inst_tile[j] = t
-                    inst_code[j] = _instance_box(hz, ula, ubr, h, sl, v0, va_w, vb_w, tx, ty, width, height, tile)
+                    if with_boxes:
+                        x0, y0 = tx * tile, ty * tile
+                        inst_code[j] = row_box(g, wint, wflt, x0, min(x0 + tile, width) - 1, y0,
+                                               min(y0 + tile, height) - 1)
                     j += 1
     # counting sort of the instances by tile, stable (Gaussian order inside a tile), in parallel over
     # CH chunks of instances: per-chunk tile counts, then each chunk's first slot in every tile
