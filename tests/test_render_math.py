@@ -169,9 +169,9 @@ def test_line16_appends_the_elements_of_the_scalar_walk(dtype, keep_any, compact
 
 
 def test_window_start_is_the_float32_ceiling():
-    """numba_tiles.vstart (trunc + compare, no libm call) = ceil(float32(slope * u) + v0) as
+    """numba_windows.vstart (trunc + compare, no libm call) = ceil(float32(slope * u) + v0) as
     footprint.py computes it: integers, halves, values just around integers, negatives, -0."""
-    from vid2haircut.render.numba_tiles import vstart
+    from vid2haircut.render.numba_windows import vstart
 
     rng = np.random.default_rng(3)
     slopes = np.concatenate([rng.uniform(-1, 1, 2000), [0.0, -0.0, 1.0, -1.0, 0.5, -0.5]]).astype(np.float32)
@@ -185,9 +185,9 @@ def test_window_start_is_the_float32_ceiling():
 
 
 def test_window_start_in_int32_is_the_same():
-    """numba_tiles.vstart32 (the walk's lanes: int32, vectorisable on AVX2) = vstart for int32 u,
+    """numba_windows.vstart32 (the walk's lanes: int32, vectorisable on AVX2) = vstart for int32 u,
     over the same cases and starts far from 0 (up to 2^30); +-2^30 beyond."""
-    from vid2haircut.render.numba_tiles import vstart, vstart32
+    from vid2haircut.render.numba_windows import vstart, vstart32
 
     @numba.njit
     def both(slopes, us, v0s, out):

@@ -36,10 +36,10 @@ def _windows_reference(means, covs, valid, height, width, power_min, cols):
 
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
 def test_numba_windows_match_a_float32_reference():
-    """numba_tiles.gaussian_windows gives, window for window, the
+    """numba_windows.gaussian_windows gives, window for window, the
     float32 formulas evaluated one Gaussian at a time: random Gaussians on and off a 61 x 47 image,
     thin and round, some degenerate, NaN, infinite or invalid."""
-    from vid2haircut.render import numba_tiles as nt
+    from vid2haircut.render import numba_windows as nt
 
     rng = np.random.default_rng(5)
     G = 3 * 256 + 17
@@ -76,7 +76,7 @@ def test_bin_windows_matches_a_python_reference(tile):
     instances as a plain Python loop over every Gaussian's tiles: windows of every size (1 tile to
     many), off the image, undrawn or with a NaN line, over two
     frames, with a head that hides some tiles (and a NaN depth, which nothing hides)."""
-    from vid2haircut.render import numba_tiles as nt
+    from vid2haircut.render import numba_tiles as nt, numba_windows as nw
 
     assert (nt.tile_shift(16), nt.tile_shift(1), nt.tile_shift(12), nt.tile_shift(0)) == (4, 0, -1, -1)
     assert all(nt._tile_of(i, 16, 4) == i // 16 and nt._tile_of(i, 12, -1) == i // 12 for i in range(-40, 41))
@@ -89,7 +89,7 @@ def test_bin_windows_matches_a_python_reference(tile):
     covs = np.stack([a * c * c + b * s * s, (a - b) * c * s, a * s * s + b * c * c], 1)
     valid = rng.random(G) > 0.05
     wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
-    nt.gaussian_windows(means, covs, valid, H, W, -4.5, 4, 8, wint, wflt)
+    nw.gaussian_windows(means, covs, valid, H, W, -4.5, 4, 8, wint, wflt)
     wflt[::97, 1] = np.nan
     frame = rng.integers(0, frames, G).astype(np.int64)
     z = rng.uniform(0.4, 0.8, G)
@@ -111,7 +111,7 @@ def test_bin_windows_matches_a_python_reference(tile):
         ub = min(ua + ncol - 1, su - 1)
         if ub < ua:
             continue
-        va, vb = nt.vstart(sl, ua, v0), nt.vstart(sl, ub, v0)
+        va, vb = nw.vstart(sl, ua, v0), nw.vstart(sl, ub, v0)
         vlo, vhi = max(min(va, vb), 0), min(max(va, vb) + hgt - 1, sv - 1)
         if vhi < vlo:
             continue
@@ -145,13 +145,13 @@ def test_bin_windows_matches_a_python_reference(tile):
         code = boxes[pos[i]]
         lo = hi = None
         if ub >= ua:
-            va, vb = nt.vstart(sl, ua, v0), nt.vstart(sl, ub, v0)
+            va, vb = nw.vstart(sl, ua, v0), nw.vstart(sl, ub, v0)
             lo, hi = max(min(va, vb), tv0) - tv0, min(max(va, vb) + hgt - 1, tv1) - tv0
         if lo is None or hi < lo:
-            assert code == nt.B_MISS, (t, g)
+            assert code == nw.B_MISS, (t, g)
             fields["miss"] += 1
             continue
-        assert nt.box_fields(code) == (0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(hgt, tv1 - tv0 + 1)), (t, g)
-        assert nt.row_box(g, wint, wflt, x0, x1, y0, y1) == code, (t, g)  # the walk's own, from the rows
+        assert nw.box_fields(code) == (0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(hgt, tv1 - tv0 + 1)), (t, g)
+        assert nw.row_box(g, wint, wflt, x0, x1, y0, y1) == code, (t, g)  # the walk's own, from the rows
         fields["hit"] += 1
     assert fields["miss"] > 10 and fields["hit"] > 1000, fields

@@ -6,7 +6,7 @@ float64 when numba imports, and the torch kernels (:mod:`.raster`, :mod:`.kernel
 same compositing model over the same kind of pixel windows (:func:`.footprint.gaussian_windows`).
 The numba backend projects the segments itself (:func:`.numba_ops.project_fused`, :mod:`.numba_project`:
 one loop forward and one backward instead of ~40 torch operations and their autograd graph)
-and computes its windows itself (:func:`.numba_tiles.gaussian_windows`), unless K or
+and computes its windows itself (:func:`.numba_windows.gaussian_windows`), unless K or
 world_2_cam require gradients: then it takes torch's Gaussians and torch's windows, bit for
 bit those of the torch backend (torch's float32 square root is not always correctly rounded,
 so numba's windows can differ from torch's by a pixel at an edge in rare cases). The two agree
@@ -315,7 +315,7 @@ def composite_fused(
     covariances, and ``valid``, ``frame`` and ``power_min`` = log(alpha_min / opacity) replace the
     footprint. ``torch_windows``: take the pixel windows from the torch backend's
     :func:`vid2haircut.render.footprint.gaussian_windows` (bit for bit its windows: for Gaussians
-    projected by torch) instead of :func:`vid2haircut.render.numba_tiles.gaussian_windows`.
+    projected by torch) instead of :func:`vid2haircut.render.numba_windows.gaussian_windows`.
     ``silhouette_ratio`` in (0, 1): also composite a second silhouette at that fraction of the
     opacity, from the same window walk (:func:`.numba_walk.alpha_and_l2`). ``t_min``: composite
     exactly front to back, each pixel stopping below this transmittance (:mod:`.numba_exact`;
@@ -325,7 +325,7 @@ def composite_fused(
         (:class:`PixelSums` with [B, H, W] fields, visible [G] bool, the second silhouette's
         [B, H, W] sum of log(1 - alpha) or None).
     """
-    from vid2haircut.render import numba_tiles
+    from vid2haircut.render import numba_windows
 
     if t_min is not None and silhouette_ratio > 0.0:
         raise ValueError("exact compositing draws no second silhouette in the same walk")
@@ -341,7 +341,7 @@ def composite_fused(
         wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
         with _LOCK:
             _numba_threads()
-            numba_tiles.gaussian_windows(means.numpy(), covs.detach().contiguous().numpy(),
+            numba_windows.gaussian_windows(means.numpy(), covs.detach().contiguous().numpy(),
                                          valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
     frame_np = frame.to(torch.int64).contiguous().numpy()
     order = gpar_sorted = None

@@ -114,7 +114,7 @@ def composite_forward(gpar, zs, wint, wflt, head, has_head, consts, nbins, tile_
     Args:
         gpar: [G, 8] (mean x, mean y, q_xx, q_xy, q_yy, z, cos2a, sin2a) in the input dtype, the
             lane dtype of the walk and of alpha and l. zs: [G] z / depth_bin (same dtype). wint,
-            wflt: window tables (:mod:`.numba_tiles`). head: [B, H, W] head depth (same dtype;
+            wflt: window tables (:mod:`.numba_windows`). head: [B, H, W] head depth (same dtype;
             used when ``has_head``). consts: [4] (log opacity, alpha_min, alpha_max, the second
             silhouette's opacity over the first's: 0 for none).
         nbins: depth bins (1: silhouette only). tile_start, sorted_g, boxes: instances per tile

@@ -35,7 +35,7 @@ from numba import njit
 
 from vid2haircut.render.numba_math import lane_cast
 from vid2haircut.render.numba_simd import line8, line16, prefetch_row
-from vid2haircut.render.numba_tiles import B_MISS, W_HGT, W_SLOPE, W_V0, box_fields, row_box, vstart32
+from vid2haircut.render.numba_windows import B_MISS, W_HGT, W_SLOPE, W_V0, box_fields, row_box, vstart32
 from vid2haircut.render.numba_walk import PREFETCH
 
 _INL = dict(cache=True, error_model="numpy", inline="always")
@@ -50,7 +50,7 @@ L_DU, L_QA, L_QB = range(3)
 @njit(**_INL)
 def _setup(g, lay, ua, ub, wint, wflt, gpar, x0, y0, L, lane, vlo, vhi):
     """Instance of Gaussian g in the tile, in layout ``lay`` with lanes ua..ub (tile relative; from
-    its box code, :func:`.numba_tiles.box_fields`): fills the lane arrays (``lane``, and vlo / vhi
+    its box code, :func:`.numba_windows.box_fields`): fills the lane arrays (``lane``, and vlo / vhi
     [L] int32: the window rows of each lane, tile relative; FAR / -FAR outside the window) and
     returns (mean v - tile v0, q_vv)."""
     if lay == 0:
@@ -103,7 +103,7 @@ def walk_lines(i0, i1, sorted_g, boxes, wint, wflt, gpar, zs, hl, consts, x0, x1
     (:func:`vid2haircut.render.numba_tiles.bin_windows`: each window's lines and lanes in its tile,
     worked out at binning), so that an instance whose window misses the tile, or (``live``) covers
     no live pixel, costs no read of its Gaussian's rows; or None: worked out here from the rows
-    (:func:`vid2haircut.render.numba_tiles.row_box`; the binned model walks every instance).
+    (:func:`vid2haircut.render.numba_windows.row_box`; the binned model walks every instance).
 
     Candidates are the window pixels inside the ellipse power > log(alpha_min) - 1e-3 that the
     head does not hide; alpha > alpha_min is then tested exactly by

@@ -14,7 +14,7 @@ from numba import njit, prange
 
 from vid2haircut.render.numba_math import lane_cast, lane_exp, lane_log1m, vexp
 from vid2haircut.render.numba_simd import prefetch_row
-from vid2haircut.render.numba_tiles import B_MISS, W_HGT, W_HZ, W_NCOL, W_ULO, box_fields
+from vid2haircut.render.numba_windows import B_MISS, W_HGT, W_HZ, W_NCOL, W_ULO, box_fields
 
 JIT = dict(cache=True, error_model="numpy")
 # columns of the Gaussian table ``gpar`` [G, 8] (input dtype)
