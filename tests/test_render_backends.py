@@ -247,5 +247,5 @@ def test_hidden_tile_instances_are_culled_without_changing_the_render(dtype, mon
     hmax = np.array([1.0, np.inf], dtype=np.float64)  # two tiles of 8 x 8 in a 16 x 8 image
     wint[2, 1] = 8  # the third window lies in the second tile
     z = np.array([1.0, np.nan, 5.0])
-    gstart, inst_pos, tile_start, sorted_g, _ = real(wint, wflt, np.zeros(3, np.int64), 1, 16, 8, 8, z, hmax, False)
+    gstart, inst_pos, tile_start, sorted_g, _, _ = real(wint, wflt, np.zeros(3, np.int64), 1, 16, 8, 8, z, hmax, False)
     assert list(tile_start) == [0, 1, 2] and list(sorted_g) == [1, 2] and list(gstart) == [0, 0, 1, 2]

@@ -96,10 +96,13 @@ def test_bin_windows_matches_a_python_reference(tile):
     z[::89] = np.nan
     ntx, nty = -(-W // tile), -(-H // tile)
     hmax = np.where(rng.random(frames * nty * ntx) < 0.3, rng.uniform(0.4, 0.8, frames * nty * ntx), np.inf)
-    gstart, inst_pos, tile_start, sorted_g, boxes = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax, True)
-    no_boxes = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax, False)  # the same lists, no codes
-    assert all(np.array_equal(u, v) for u, v in zip(no_boxes[:4], (gstart, inst_pos, tile_start, sorted_g)))
-    assert no_boxes[4].shape == (0,)
+    gstart, inst_pos, tile_start, sorted_g, no_codes, no_csr = nt.bin_windows(wint, wflt, frame, frames, W, H, tile,
+                                                                             z, hmax, False)
+    exact = nt.bin_windows(wint, wflt, frame, frames, W, H, tile, z, hmax, True)  # the same lists, codes, inst_csr
+    assert all(np.array_equal(u, v) for u, v in zip((exact[0], exact[2], exact[3]), (gstart, tile_start, sorted_g)))
+    assert no_codes.shape == (0,) and no_csr.shape == (0,) and exact[1].shape == (0,)
+    boxes, inst_csr = exact[4], exact[5]
+    assert inst_csr.dtype == np.int32 and np.array_equal(inst_pos[inst_csr], np.arange(inst_pos.shape[0]))  # inverted
 
     inst = []  # (tile, g) in Gaussian order
     for g in range(G):

@@ -46,6 +46,7 @@ import torch
 from torch import Tensor
 
 from vid2haircut.render import numba_simd
+from vid2haircut.render.allocator import aligned_empty
 from vid2haircut.render.footprint import gaussian_windows
 from vid2haircut.render.kernels import KernelConsts
 from vid2haircut.render.types import PixelSums
@@ -151,9 +152,10 @@ class _Plan:
             _numba_threads()
             hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
             exact = t_min is not None  # (box codes for the exact model's walk: numba_tiles.bin_windows)
-            self.gstart, self.inst_pos, self.tile_start, self.sorted_g, boxes = numba_tiles.bin_windows(
+            self.gstart, self.inst_pos, self.tile_start, self.sorted_g, boxes, inst_csr = numba_tiles.bin_windows(
                 wint, wflt, frame, batch, width, height, TILE, z, hmax, exact)
             self.boxes = boxes if exact else None
+            self.inst_csr = inst_csr if exact else None
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, self.boxes, width, height, TILE)
         bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_simd)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
@@ -221,8 +223,8 @@ class _FusedComposite(torch.autograd.Function):
             return _exact_backward(ctx, g_l, g_2, g_z, g_d)
         B, H, W = plan.shape
         g = _grad_images((g_l, g_z, g_d, g_2), plan.out_shapes, ctx.gpar.dtype)
-        acc = np.empty((plan.sorted_g.shape[0], nk.N_ACC))  # composite_backward writes every entry
-        grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
+        acc = aligned_empty((plan.sorted_g.shape[0], nk.N_ACC), np.float64)  # composite_backward writes every entry
+        grads = aligned_empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)  # float64 sums, stored in the table's dtype
         with _LOCK:
             nk.composite_backward(ctx.gpar, plan.consts, plan.nbins, plan.tile_start, plan.sorted_g,
                                   plan.work_start, plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, acc)
@@ -282,13 +284,13 @@ def _exact_backward(ctx, g_l, g_w, g_z, g_d):
     g = _grad_images((g_l, g_w, g_z, g_d), shapes, ctx.gpar.dtype)
     kept = ctx.tile_kept  # rows of sums for the instances with elements only, tile by tile
     acc_start = np.concatenate([[0], np.cumsum(kept)[:-1]]).astype(np.int64)
-    acc = np.empty((int(kept.sum()), nk.N_ACC))
-    slot = np.empty(plan.sorted_g.shape[0], np.int32)
-    grads = np.empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
+    acc = aligned_empty((int(kept.sum()), nk.N_ACC), np.float64)  # one cache line a row (read scattered)
+    slot = np.full(plan.sorted_g.shape[0], -1, np.int32)  # each instance's row, in Gaussian order (-1: none)
+    grads = aligned_empty((ctx.gpar.shape[0], 8), ctx.gpar.dtype)
     with _LOCK:
         ne.composite_exact_backward(ctx.gpar, plan.shade, plan.tile_start, plan.sorted_g, plan.work_start,
                                     plan.work_tiles, W, H, TILE, ctx.elems, ctx.e_range, g, ctx.sums, ctx.t_end, acc,
-                                    acc_start, slot)
+                                    acc_start, plan.inst_csr, slot)
         nk.reduce_gradients(plan.gstart, plan.inst_pos, ctx.gpar, acc, grads, plan.order, slot)  # in the table's order
     return torch.from_numpy(grads).to(ctx.dtype), None, None
 

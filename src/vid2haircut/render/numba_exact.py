@@ -43,6 +43,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from vid2haircut.render.allocator import aligned_empty
 from vid2haircut.render.numba_kernels import GATHER_AHEAD, N_ACC, _pixel_xy, walk_scratch
 from vid2haircut.render.numba_lines import load_head, walk_lines
 from vid2haircut.render.numba_math import lane_cast, lane_exp
@@ -126,9 +127,7 @@ def gaussian_records(G, dtype):
     threaded for 4k strands at 256 x 256 (AMD Zen 3), the same results."""
     item = np.dtype(dtype).itemsize
     rb = 64 if item == 4 else 128
-    raw = np.empty(G * rb + 64, np.uint8)
-    off = -raw.ctypes.data % 64
-    rec = raw[off:off + G * rb].reshape(G, rb)
+    rec = aligned_empty((G, rb), np.uint8)
     w0 = 8 * item  # byte offsets: the Gaussian's 8 values, then (slope, v0), then the 4 window integers
     gpar = rec.view(dtype)[:, 0:8]
     wflt = rec.view(np.float32)[:, w0 // 4:w0 // 4 + 2]
@@ -300,7 +299,7 @@ def composite_exact_forward(gpar, zs, wint, wflt, head, has_head, consts, shade,
 
 @njit(**_PAR)
 def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work_tiles, width, height, tile, elems,
-                             e_range, grad, sums, t_end, acc, acc_start, slot):
+                             e_range, grad, sums, t_end, acc, acc_start, inst_csr, slot):
     """Backward compositing of all tiles from the elements kept by :func:`composite_exact_forward`
     (every one of them composited).
 
@@ -309,10 +308,13 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
             dtype (summed in float64; the last two read with ``shade`` only); sums, t_end: the
             forward's; acc: [n, 8] filled (see :data:`.numba_kernels.N_ACC`), one row per instance
             with elements (n of them), tile t's from row acc_start[t] on (the forward's tile_kept,
-            summed), in instance order; slot: [n_instances] int32 filled with each instance's row
-            (-1: none; :func:`.numba_kernels.reduce_gradients`). Rows for the 2/3 of the instances
-            without elements (4k strands at 256 x 256) cost their writes here and their reads in
-            the reduction. The rest as given to the forward kernel.
+            summed), in instance order; inst_csr: [n_instances] each instance's position in the
+            Gaussian order (:func:`.numba_tiles.bin_windows`); slot: [n_instances] int32 -1,
+            indexed by that position, where each instance with elements gets its row (the reduction,
+            :func:`.numba_kernels.reduce_gradients`, then reads its slots in order: read by
+            instance, they were one random read each, 1/5 of its time). Rows for the 2/3 of the
+            instances without elements (4k strands at 256 x 256) would cost their writes here and
+            their reads in the reduction. The rest as given to the forward kernel.
     """
     e_p, e_al, e_da = elems
     g_l, g_w, g_z, g_d = grad
@@ -340,7 +342,6 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                 if kp < k1 and e_range[kp, 1] > e_range[kp, 0]:
                     prefetch_row(gpar, sorted_g[kp])
                 if e_range[k, 1] == e_range[k, 0]:  # no element (most instances): no row to read or write
-                    slot[k] = -1
                     continue
                 gk = sorted_g[k]
                 z, c, s = gpar[gk, G_Z], gpar[gk, G_C], gpar[gk, G_S]
@@ -368,7 +369,7 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                     s4 += gp * dy * dy
                 acc[r, 0], acc[r, 1], acc[r, 2], acc[r, 3], acc[r, 4] = s0, s1, s2, s3, s4
                 acc[r, 5], acc[r, 6], acc[r, 7] = sz, sc, ss
-                slot[k] = r
+                slot[inst_csr[k]] = r
                 r += 1
 
 

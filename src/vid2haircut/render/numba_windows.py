@@ -76,7 +76,7 @@ def box_fields(c):
 def row_box(g, wint, wflt, x0, x1, y0, y1):
     """Box code (:func:`box_code`, or :data:`B_MISS`) of window g in the tile of pixels x0..x1,
     y0..y1, from its rows: what the window walk (:func:`vid2haircut.render.numba_lines.walk_lines`)
-    takes to start an instance, listed by :func:`.numba_tiles.bin_windows` with ``with_boxes``."""
+    takes to start an instance, listed by :func:`.numba_tiles.bin_windows` for the exact model."""
     hz = wint[g, W_HZ] != 0
     tu0, tu1, tv0, tv1 = (x0, x1, y0, y1) if hz else (y0, y1, x0, x1)
     ula = np.int64(wint[g, W_ULO])
