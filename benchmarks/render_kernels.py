@@ -32,7 +32,8 @@ KERNELS = {
     "numba_walk": ("tile_bounds",),
     "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
     "numba_channels": ("channels_forward", "channels_backward", "normalize_forward", "normalize_backward"),
-    "numba_exact": ("depth_order", "gather_gaussians", "composite_exact_forward", "composite_exact_backward"),
+    "numba_exact": ("depth_order", "gather_gaussians", "gather_windows", "composite_exact_forward",
+                    "composite_exact_backward"),
 }
 
 

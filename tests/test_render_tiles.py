@@ -69,6 +69,41 @@ def test_numba_windows_match_a_float32_reference():
 
 
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_gathered_windows_are_the_window_tables_gathered(dtype):
+    """numba_exact.gather_windows (the exact model's windows, computed while the Gaussians are
+    gathered in depth order) writes byte for byte the records of gaussian_windows then
+    gather_gaussians, degenerate, NaN and invalid Gaussians included, and the same frames."""
+    from vid2haircut.render import numba_exact as ne
+    from vid2haircut.render import numba_windows as nw
+
+    rng = np.random.default_rng(11)
+    G = 2 * 256 + 29
+    table = rng.uniform(-20, 80, (G, 8)).astype(dtype)  # (mean x, mean y, ..., depth, ...)
+    table[:, 5] = rng.uniform(0.4, 0.8, G)
+    a, b = rng.uniform(0.05, 30, G), rng.uniform(0.05, 3, G)
+    ang = rng.uniform(0, np.pi, G)
+    c, s = np.cos(ang), np.sin(ang)
+    covs = np.stack([a * c * c + b * s * s, (a - b) * c * s, a * s * s + b * c * c], 1).astype(dtype)
+    covs[::37, 1] = np.sqrt(covs[::37, 0] * covs[::37, 2])
+    table[::41, 0] = np.nan
+    covs[::43, 2] = np.inf
+    valid = rng.random(G) > 0.1
+    frame = rng.integers(0, 3, G).astype(np.int64)
+    order = ne.depth_order(table[:, 5])
+    wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
+    rows = nw.gaussian_windows(table[:, 0:2], covs, valid, 47, 61, -4.5, 4, 8, wint, wflt)
+    want = ne.gaussian_records(G, dtype)
+    fr_want = ne.gather_gaussians(order, table, wint, wflt, frame, *want)
+    got = ne.gaussian_records(G, dtype)
+    fr_got, rows_got = ne.gather_windows(order, table, covs, valid, frame, 47, 61, -4.5, 4, 8, *got)
+    assert rows_got == rows and np.array_equal(fr_got, fr_want) and np.array_equal(fr_got, frame[order])
+    for u, v in zip(got, want):
+        assert u.tobytes() == v.tobytes()
+    assert 0 < (want[1][:, nw.W_NCOL] > 0).sum() < G  # drawn and undrawn windows both
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba")
 @pytest.mark.parametrize("tile", [16, 12])
 def test_bin_windows_matches_a_python_reference(tile):
     """numba_tiles.bin_windows (branch-free tile boxes, an unrolled count for boxes of up to 2 x 2

@@ -333,12 +333,13 @@ def composite_fused(
         raise ValueError("exact compositing draws no second silhouette in the same walk")
     dt = table.dtype
     means = table[:, 0:2].detach()
+    exact_windows = t_min is not None and not torch_windows  # (computed while gathered in depth order, below)
     if torch_windows:
         win = gaussian_windows(means, covs.detach(), valid, height, width, power_min)
         wint = torch.stack([win.horizontal.to(torch.int64), win.u_lo.to(torch.int64), win.ntu * win.cols,
                             win.ntv * win.rows], 1).contiguous().numpy()
         wflt = torch.stack([win.slope, win.v0], 1).contiguous().numpy()
-    else:
+    elif not exact_windows:
         G = means.shape[0]
         wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
         with _LOCK:
@@ -359,7 +360,13 @@ def composite_fused(
         with _LOCK:
             _numba_threads()
             order = numba_exact.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
-            frame_np = numba_exact.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint, rec_wflt)
+            if exact_windows:  # the windows computed into the records
+                frame_np, _ = numba_exact.gather_windows(order, tab, covs.detach().contiguous().numpy(),
+                                                         valid.contiguous().numpy(), frame_np, height, width, power_min,
+                                                         4, 8, gpar_sorted, rec_wint, rec_wflt)
+            else:
+                frame_np = numba_exact.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint,
+                                                        rec_wflt)
         wint, wflt, z_np = rec_wint, rec_wflt, gpar_sorted[:, 5]  # (strided views of the records)
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do

@@ -49,6 +49,7 @@ from vid2haircut.render.numba_lines import load_head, walk_lines
 from vid2haircut.render.numba_math import lane_cast, lane_exp
 from vid2haircut.render.numba_simd import prefetch_row
 from vid2haircut.render.numba_walk import C_AMAX, C_AMIN, G_C, G_MX, G_MY, G_S, G_Z, PREFETCH, tile_box
+from vid2haircut.render.numba_windows import W_HGT, W_HZ, W_NCOL, W_SLOPE, W_ULO, W_V0, common_rows, window_of
 
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
 CHUNK = 8
@@ -155,6 +156,43 @@ def gather_gaussians(order, gpar, wint, wflt, frame, gs, ws, fs):
         fs[i, 0], fs[i, 1] = wflt[j, 0], wflt[j, 1]
         fr[i] = frame[j]
     return fr
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def gather_windows(order, gpar, covs, valid, frame, height, width, power_min, cols, max_rows, gs, ws, fs):
+    """:func:`gather_gaussians` for the numba backend's own windows: the Gaussians' rows in the order
+    ``order``, with their windows computed on the way (:func:`.numba_windows.window_of`, the
+    values of :func:`.numba_windows.gaussian_windows`) from their means (gpar[:, 0:2]), ``covs``
+    [G, 3] float32 and ``valid`` [G] bool, straight into the records: no window tables to write,
+    then read scattered (4k strands at 256 x 256: windows 1.0 + gather 0.5 ms -> 0.85 ms before
+    the common height, isolated; AMD Zen 4). height, width, power_min, cols, max_rows: as for
+    :func:`.numba_windows.gaussian_windows`. Returns (frame [G] in that order, the common tile height)."""
+    G = order.shape[0]
+    fr = np.empty(G, frame.dtype)
+    need = np.empty(G, np.int64)
+    ntu = np.empty(G, np.int64)
+    f32 = np.float32
+    c2 = f32(-2.0 * power_min)
+    for i in prange(G):
+        ia = np.int64(order[min(i + GATHER_AHEAD, G - 1)])  # the rows read GATHER_AHEAD iterations later
+        prefetch_row(gpar, ia)
+        prefetch_row(covs, ia)
+        j = np.int64(order[i])
+        _copy_row(gs, i, gpar, j, 8)
+        fr[i] = frame[j]
+        hz, u_lo, nt, nd, slope, v0 = window_of(f32(gpar[j, 0]), f32(gpar[j, 1]), f32(covs[j, 0]), f32(covs[j, 1]),
+                                                f32(covs[j, 2]), valid[j], height, width, c2, cols)
+        ntu[i] = nt
+        need[i] = nd
+        ws[i, W_HZ] = np.int32(hz)
+        ws[i, W_ULO] = np.int32(u_lo)
+        ws[i, W_NCOL] = np.int32(nt * cols)
+        fs[i, W_SLOPE] = slope
+        fs[i, W_V0] = v0
+    rows = common_rows(need, ntu, max_rows)
+    for i in prange(G):
+        ws[i, W_HGT] = np.int32(((need[i] + rows - 1) // rows) * rows)
+    return fr, rows
 
 
 @njit(cache=True, error_model="numpy", fastmath={"contract"})
@@ -373,4 +411,4 @@ def composite_exact_backward(gpar, shade, tile_start, sorted_g, work_start, work
                 r += 1
 
 
-__all__ = ["depth_order", "gaussian_records", "gather_gaussians", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]
+__all__ = ["depth_order", "gaussian_records", "gather_gaussians", "gather_windows", "composite_exact_forward", "composite_exact_backward", "alpha_and_slope", "T_MIN", "CHUNK", "N_ACC"]

@@ -93,10 +93,60 @@ def row_box(g, wint, wflt, x0, x1, y0, y1):
     return box_code(0 if hz else 1, lo, hi, ua - tu0, ub - tu0, min(h, tv1 - tv0 + 1))
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def window_of(mx, my, sxx, sxy, syy, valid, height, width, c2, cols):
+    """The window of one Gaussian (mean mx, my, covariance sxx, sxy, syy, all float32; ``valid``;
+    c2 = -2 power_min in float32; ``cols`` the tile width), in float32 in the order of operations of
+    :func:`vid2haircut.render.footprint.gaussian_windows`.
+
+    Returns:
+        (horizontal, u_lo, column tiles ntu, rows needed, slope, v0): the window's ``wint`` row is
+        (horizontal, u_lo, ntu * cols, its height, :func:`common_rows`), its ``wflt`` row (slope, v0).
+    """
+    f32 = np.float32
+    hz = sxx >= syy
+    mu, mv = (mx, my) if hz else (my, mx)
+    suu, svv = (sxx, syy) if hz else (syy, sxx)
+    size_u, size_v = (f32(width), f32(height)) if hz else (f32(height), f32(width))
+    eu = np.sqrt(c2 * suu)
+    ev = np.sqrt(c2 * svv)
+    u_lo = max(np.ceil(mu - eu), f32(0.0))
+    u_hi = min(np.floor(mu + eu), size_u - f32(1.0))
+    on_image = (mv + ev >= f32(0.0)) & (mv - ev <= size_v - f32(1.0))
+    slope = sxy / suu
+    det = max(suu * svv - sxy * sxy, f32(1e-12))
+    half = np.sqrt(c2 * det / suu)
+    ok = valid & on_image & np.isfinite(mu) & np.isfinite(eu) & np.isfinite(ev) & np.isfinite(half)
+    ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if ok else f32(0.0)
+    nt = np.int64(np.ceil(ncol / f32(cols)))
+    need = np.int64(np.floor(f32(2.0) * half) + f32(1.0)) if nt > 0 else 1
+    return hz, np.int64(u_lo) if ok else 0, nt, need, slope, mv - slope * mu - half
+
+
+@njit(cache=True, error_model="numpy")
+def common_rows(need, ntu, max_rows):
+    """The common tile height R in 1..max_rows minimising sum_g ntu_g * ceil(need_g / R) * (R + column
+    cost) over the windows (``need``, ``ntu`` [G] from :func:`window_of`), as
+    :func:`vid2haircut.render.footprint._choose_rows` does; a window's height is then
+    ceil(need_g / R) * R."""
+    hist = np.zeros(65)
+    for g in range(need.shape[0]):
+        if ntu[g] > 0:
+            hist[min(need[g], 64)] += float(ntu[g])
+    rows, best = 1, np.inf
+    for R in range(1, max_rows + 1):
+        cost = 0.0
+        for n in range(65):
+            cost += hist[n] * math.ceil(n / R) * (R + COLUMN_COST)
+        if cost < best:
+            rows, best = R, cost
+    return rows
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def gaussian_windows(means, covs, valid, height, width, power_min, cols, max_rows, wint, wflt):
     """The pixel windows of :func:`vid2haircut.render.footprint.gaussian_windows`, computed here in
-    float32 in the same order of operations, straight into the window tables.
+    float32 in the same order of operations (:func:`window_of`), straight into the window tables.
 
     Args:
         means: [G, 2], covs: [G, 3] (any float dtype; rounded to float32 first, as there), valid:
@@ -118,43 +168,16 @@ def gaussian_windows(means, covs, valid, height, width, power_min, cols, max_row
     need = np.empty(G, np.int64)
     ntu = np.empty(G, np.int64)
     for g in prange(G):
-        mx, my = f32(means[g, 0]), f32(means[g, 1])
-        sxx, sxy, syy = f32(covs[g, 0]), f32(covs[g, 1]), f32(covs[g, 2])
-        hz = sxx >= syy
-        mu, mv = (mx, my) if hz else (my, mx)
-        suu, svv = (sxx, syy) if hz else (syy, sxx)
-        size_u, size_v = (f32(width), f32(height)) if hz else (f32(height), f32(width))
-        eu = np.sqrt(c2 * suu)
-        ev = np.sqrt(c2 * svv)
-        u_lo = max(np.ceil(mu - eu), f32(0.0))
-        u_hi = min(np.floor(mu + eu), size_u - f32(1.0))
-        on_image = (mv + ev >= f32(0.0)) & (mv - ev <= size_v - f32(1.0))
-        slope = sxy / suu
-        det = max(suu * svv - sxy * sxy, f32(1e-12))
-        half = np.sqrt(c2 * det / suu)
-        ok = valid[g] & on_image & np.isfinite(mu) & np.isfinite(eu) & np.isfinite(ev) & np.isfinite(half)
-        ncol = max(u_hi - u_lo + f32(1.0), f32(0.0)) if ok else f32(0.0)
-        nt = np.int64(np.ceil(ncol / f32(cols)))
+        hz, u_lo, nt, nd, slope, v0 = window_of(f32(means[g, 0]), f32(means[g, 1]), f32(covs[g, 0]), f32(covs[g, 1]),
+                                                f32(covs[g, 2]), valid[g], height, width, c2, cols)
         ntu[g] = nt
-        need[g] = np.int64(np.floor(f32(2.0) * half) + f32(1.0)) if nt > 0 else 1
+        need[g] = nd
         wint[g, W_HZ] = np.int64(hz)
-        wint[g, W_ULO] = np.int64(u_lo) if ok else 0
+        wint[g, W_ULO] = u_lo
         wint[g, W_NCOL] = nt * cols
         wflt[g, W_SLOPE] = slope
-        wflt[g, W_V0] = mv - slope * mu - half
-    # common tile height R minimising sum_g ntu_g * ceil(need_g / R) * (R + column cost), as in
-    # vid2haircut.render.footprint._choose_rows
-    hist = np.zeros(65)
-    for g in range(G):
-        if ntu[g] > 0:
-            hist[min(need[g], 64)] += float(ntu[g])
-    rows, best = 1, np.inf
-    for R in range(1, max_rows + 1):
-        cost = 0.0
-        for n in range(65):
-            cost += hist[n] * math.ceil(n / R) * (R + COLUMN_COST)
-        if cost < best:
-            rows, best = R, cost
+        wflt[g, W_V0] = v0
+    rows = common_rows(need, ntu, max_rows)
     for g in prange(G):
         wint[g, W_HGT] = ((need[g] + rows - 1) // rows) * rows
     return rows
