@@ -361,9 +361,9 @@ def composite_fused(
             _numba_threads()
             order = numba_exact.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
             if exact_windows:  # the windows computed into the records
-                frame_np, _ = numba_exact.gather_windows(order, tab, covs.detach().contiguous().numpy(),
-                                                         valid.contiguous().numpy(), frame_np, height, width, power_min,
-                                                         4, 8, gpar_sorted, rec_wint, rec_wflt)
+                frame_np = numba_exact.gather_windows(order, tab, covs.detach().contiguous().numpy(),
+                                                      valid.contiguous().numpy(), frame_np, height, width, power_min, 4,
+                                                      gpar_sorted, rec_wint, rec_wflt)
             else:
                 frame_np = numba_exact.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint,
                                                         rec_wflt)
