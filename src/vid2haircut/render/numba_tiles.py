@@ -123,60 +123,51 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, exact)
     ntx = (width + tile - 1) // tile
     nty = (height + tile - 1) // tile
     box = np.empty((G, 4), np.int64)
-    cnt = np.empty(G, np.int64)
     NT = nframes * nty * ntx
     shift = tile_shift(tile)
-    for g in prange(G):
-        bx0, bx1, by0, by1 = _tile_box(g, wint, wflt, width, height, tile, shift)
-        box[g, 0], box[g, 1], box[g, 2], box[g, 3] = bx0, bx1, by0, by1
-        zg, row0 = z[g], frame[g] * nty
-        if bx1 - bx0 <= 1 and by1 - by0 <= 1:  # at most 2 x 2 tiles (most windows): no loop to mispredict
-            x1 = bx0 + 1 <= bx1
-            y1 = by0 + 1 <= by1
-            any_ = bx0 <= bx1
-            t00 = (row0 + by0) * ntx + bx0
-            t00 = t00 if any_ else 0
-            t01 = t00 + 1 if x1 else t00
-            t10 = t00 + ntx if y1 else t00
-            t11 = t10 + 1 if x1 else t10
-            cnt[g] = (np.int64(any_ & (not zg >= hmax[t00])) + np.int64(x1 & (not zg >= hmax[t01]))
-                      + np.int64(y1 & (not zg >= hmax[t10])) + np.int64(x1 & y1 & (not zg >= hmax[t11])))
-        else:
-            c = 0
-            for ty in range(by0, by1 + 1):
-                for tx in range(bx0, bx1 + 1):
-                    c += not zg >= hmax[(row0 + ty) * ntx + tx]
-            cnt[g] = c
-    gstart = np.zeros(G + 1, np.int64)
-    for g in range(G):
-        gstart[g + 1] = gstart[g] + cnt[g]
-    n = gstart[G]
-    inst_tile = np.empty(n, np.int64)
-    inst_code = np.empty(n if exact else 0, np.uint32)
-    for g in prange(G):
-        j, j1 = gstart[g], gstart[g + 1]
-        if j == j1:
-            continue
-        bx0, bx1, by0, by1 = box[g, 0], box[g, 1], box[g, 2], box[g, 3]
-        zg, row0 = z[g], frame[g] * nty
-        for ty in range(by0, by1 + 1):
-            for tx in range(bx0, bx1 + 1):
-                t = (row0 + ty) * ntx + tx
-                if j < j1 and not zg >= hmax[t]:
-                    inst_tile[j] = t
-                    if exact:
-                        x0, y0 = tx * tile, ty * tile
-                        inst_code[j] = row_box(g, wint, wflt, x0, min(x0 + tile, width) - 1, y0,
-                                               min(y0 + tile, height) - 1)
-                    j += 1
-    # counting sort of the instances by tile, stable (Gaussian order inside a tile), in parallel over
-    # CH chunks of instances: per-chunk tile counts, then each chunk's first slot in every tile
+    # the Gaussians in CH chunks: per chunk, its count of instances in every tile (then each chunk's
+    # first slot in every tile), so that the listing pass writes each instance straight to its place
+    # in the tile order, Gaussian order inside a tile (no list in Gaussian order to sort after)
     CH = 64
-    step = (n + CH - 1) // CH
+    step = (G + CH - 1) // CH
     counts = np.zeros((CH + 1, NT), np.int64)
+    ctot = np.zeros(CH + 1, np.int64)
     for c in prange(CH):
-        for j in range(c * step, min((c + 1) * step, n)):
-            counts[c + 1, inst_tile[j]] += 1
+        cc = counts[c + 1]
+        tot = 0
+        for g in range(c * step, min((c + 1) * step, G)):
+            bx0, bx1, by0, by1 = _tile_box(g, wint, wflt, width, height, tile, shift)
+            box[g, 0], box[g, 1], box[g, 2], box[g, 3] = bx0, bx1, by0, by1
+            zg, row0 = z[g], frame[g] * nty
+            if bx1 - bx0 <= 1 and by1 - by0 <= 1:  # at most 2 x 2 tiles (most windows): no loop to mispredict
+                x1 = bx0 + 1 <= bx1
+                y1 = by0 + 1 <= by1
+                any_ = bx0 <= bx1
+                t00 = (row0 + by0) * ntx + bx0
+                t00 = t00 if any_ else 0
+                t01 = t00 + 1 if x1 else t00
+                t10 = t00 + ntx if y1 else t00
+                t11 = t10 + 1 if x1 else t10
+                k00 = np.int64(any_ & (not zg >= hmax[t00]))
+                k01 = np.int64(x1 & (not zg >= hmax[t01]))
+                k10 = np.int64(y1 & (not zg >= hmax[t10]))
+                k11 = np.int64(x1 & y1 & (not zg >= hmax[t11]))
+                cc[t00] += k00
+                cc[t01] += k01
+                cc[t10] += k10
+                cc[t11] += k11
+                tot += k00 + k01 + k10 + k11
+            else:
+                for ty in range(by0, by1 + 1):
+                    for tx in range(bx0, bx1 + 1):
+                        t = (row0 + ty) * ntx + tx
+                        k = np.int64(not zg >= hmax[t])
+                        cc[t] += k
+                        tot += k
+        ctot[c + 1] = tot
+    for c in range(CH):
+        ctot[c + 1] += ctot[c]
+    n = ctot[CH]
     tile_start = np.zeros(NT + 1, np.int64)
     for t in range(NT):
         tot = 0
@@ -189,24 +180,34 @@ def bin_windows(wint, wflt, frame, nframes, width, height, tile, z, hmax, exact)
             k = counts[c + 1, t]
             counts[c, t] = cur
             cur += k
+    gstart = np.empty(G + 1, np.int64)
+    gstart[G] = n
     sorted_g = np.empty(n, np.int64)
     inst_pos = np.empty(0 if exact else n, np.int64)
     boxes = np.empty(n if exact else 0, np.uint32)
     inst_csr = np.empty(n if exact else 0, np.int32)
     for c in prange(CH):
-        cursor = counts[c].copy()
-        g = np.searchsorted(gstart, c * step, side="right") - 1  # Gaussian of the chunk's first instance
-        for j in range(c * step, min((c + 1) * step, n)):
-            while gstart[g + 1] <= j:
-                g += 1
-            pos = cursor[inst_tile[j]]
-            cursor[inst_tile[j]] += 1
-            sorted_g[pos] = g
-            if exact:
-                boxes[pos] = inst_code[j]
-                inst_csr[pos] = j
-            else:
-                inst_pos[j] = pos
+        cursor = counts[c]
+        j = ctot[c]  # the chunk's first instance in the Gaussian order
+        for g in range(c * step, min((c + 1) * step, G)):
+            gstart[g] = j
+            bx0, bx1, by0, by1 = box[g, 0], box[g, 1], box[g, 2], box[g, 3]
+            zg, row0 = z[g], frame[g] * nty
+            for ty in range(by0, by1 + 1):
+                for tx in range(bx0, bx1 + 1):
+                    t = (row0 + ty) * ntx + tx
+                    if not zg >= hmax[t]:
+                        pos = cursor[t]
+                        cursor[t] += 1
+                        sorted_g[pos] = g
+                        if exact:
+                            x0, y0 = tx * tile, ty * tile
+                            boxes[pos] = row_box(g, wint, wflt, x0, min(x0 + tile, width) - 1, y0,
+                                                 min(y0 + tile, height) - 1)
+                            inst_csr[pos] = j
+                        else:
+                            inst_pos[j] = pos
+                        j += 1
     return gstart, inst_pos, tile_start, sorted_g, boxes, inst_csr
 
 
