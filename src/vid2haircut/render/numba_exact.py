@@ -182,6 +182,7 @@ def gather_windows(order, gpar, covs, valid, frame, height, width, power_min, co
         ia = np.int64(order[min(i + GATHER_AHEAD, G - 1)])  # the rows read GATHER_AHEAD iterations later
         prefetch_row(gpar, ia)
         prefetch_row(covs, ia)
+        prefetch_row(frame, ia)
         j = np.int64(order[i])
         _copy_row(gs, i, gpar, j, 8)
         fr[i] = frame[j]
