@@ -36,6 +36,11 @@ KERNELS = {
                     "composite_exact_backward"),
 }
 
+OTHER_PATH = ("gather_gaussians",)
+"""Kernels the benchmark's scene does not call: the gather of Gaussians whose windows torch
+computed (the projection by torch, when a camera needs gradients); the numba projection's windows
+are computed in the gather (``gather_windows``)."""
+
 
 def timed_kernels(times: dict[str, float], package: str = "vid2haircut") -> list:
     """Replace the kernels of ``package`` (render_ab.py passes another commit's copy) by wrappers
