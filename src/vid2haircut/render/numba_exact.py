@@ -21,7 +21,8 @@ The kernels read each instance's Gaussian rows through ``sorted_g``, prefetched 
 ahead (:data:`.numba_walk.PREFETCH`; a copy of the rows per instance in tile order, written by the
 binning, cost more than it saved: binning 4.4 -> 2.9 ms, forward and backward +0.8 ms without it),
 from one 64-byte record per Gaussian (:func:`gaussian_records`: its row, depth and window in one
-cache line), and only for instances whose box code (:func:`.numba_windows.box_code`, worked out at
+cache line; :func:`gather_windows` fills them in depth order, computing each window on the way
+with the rows it needs), and only for instances whose box code (:func:`.numba_windows.box_code`, worked out at
 binning) covers a live pixel.
 The log transmittance log T(p) and the silhouette 1 - T(p) are outputs.
 
