@@ -32,8 +32,9 @@ KERNELS = {
     "numba_walk": ("tile_bounds",),
     "numba_kernels": ("composite_forward", "composite_backward", "reduce_gradients"),
     "numba_channels": ("channels_forward", "channels_backward", "normalize_forward", "normalize_backward"),
+    "numba_records": ("depth_order", "gather_gaussians", "gather_windows"),
     "numba_exact": ("depth_order", "gather_gaussians", "gather_windows", "composite_exact_forward",
-                    "composite_exact_backward"),
+                    "composite_exact_backward"),  # (its first three: before numba_records)
 }
 
 OTHER_PATH = ("gather_gaussians",)

@@ -141,7 +141,7 @@ def test_translucent_silhouette_and_silhouette_only():
 
 
 def test_depth_order():
-    from vid2haircut.render.numba_exact import depth_order
+    from vid2haircut.render.numba_records import depth_order
 
     rng = np.random.default_rng(0)
     for dt in (np.float32, np.float64):

@@ -71,11 +71,11 @@ def test_numba_windows_match_a_float32_reference():
 @pytest.mark.skipif(not numba_available(), reason="needs numba")
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
 def test_gathered_windows_are_the_window_tables_gathered(dtype):
-    """numba_exact.gather_windows (the exact model's windows, computed while the Gaussians are
+    """numba_records.gather_windows (the exact model's windows, computed while the Gaussians are
     gathered in depth order) writes byte for byte the records of gaussian_windows then
     gather_gaussians, degenerate, NaN and invalid Gaussians included, and the same frames, but
     for the heights: the rows each window needs, not rounded up to the common tile height."""
-    from vid2haircut.render import numba_exact as ne
+    from vid2haircut.render import numba_records as nr
     from vid2haircut.render import numba_windows as nw
 
     rng = np.random.default_rng(11)
@@ -91,13 +91,13 @@ def test_gathered_windows_are_the_window_tables_gathered(dtype):
     covs[::43, 2] = np.inf
     valid = rng.random(G) > 0.1
     frame = rng.integers(0, 3, G).astype(np.int64)
-    order = ne.depth_order(table[:, 5])
+    order = nr.depth_order(table[:, 5])
     wint, wflt = np.empty((G, 4), np.int64), np.empty((G, 2), np.float32)
     rows = nw.gaussian_windows(table[:, 0:2], covs, valid, 47, 61, -4.5, 4, 8, wint, wflt)
-    want = ne.gaussian_records(G, dtype)
-    fr_want = ne.gather_gaussians(order, table, wint, wflt, frame, *want)
-    got = ne.gaussian_records(G, dtype)
-    fr_got = ne.gather_windows(order, table, covs, valid, frame, 47, 61, -4.5, 4, *got)
+    want = nr.gaussian_records(G, dtype)
+    fr_want = nr.gather_gaussians(order, table, wint, wflt, frame, *want)
+    got = nr.gaussian_records(G, dtype)
+    fr_got = nr.gather_windows(order, table, covs, valid, frame, 47, 61, -4.5, 4, *got)
     assert np.array_equal(fr_got, fr_want) and np.array_equal(fr_got, frame[order])
     for u, v in zip(got, want):
         if u.dtype == np.int32:  # the window integers: heights apart, the same

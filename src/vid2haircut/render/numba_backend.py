@@ -168,7 +168,7 @@ class _Plan:
         self.exact = t_min is not None  # front to back (numba_exact), the Gaussians numbered by depth
         self.t_min = float(t_min) if self.exact else 0.0
         self.shade = bool(consts.shading)
-        self.order = None  # exact: [G] the Gaussians' depth order (numba_exact.depth_order)
+        self.order = None  # exact: [G] the Gaussians' depth order (numba_records.depth_order)
         self.work_start, self.work_tiles = numba_tiles.assign_tiles(self.tile_start, numba.get_num_threads())
         # shapes of the kernels' four per-pixel outputs (sum l, sum w z, direction sums, sum l2) and
         # of their gradients; empty where the kernels neither write nor read them
@@ -245,7 +245,7 @@ def _exact_forward(ctx, table, plan):
     """:class:`_FusedComposite`'s forward with :mod:`.numba_exact`."""
     from vid2haircut.render import numba_exact as ne
 
-    gpar = plan.gpar_sorted  # the table's rows in depth order (views of numba_exact.gaussian_records)
+    gpar = plan.gpar_sorted  # the table's rows in depth order (views of numba_records.gaussian_records)
     z_np = gpar[:, 5]
     B, H, W = plan.shape
     dt = gpar.dtype
@@ -352,20 +352,20 @@ def composite_fused(
         z = table[:, 5].detach().contiguous()
         z_np = z.numpy()
     else:  # exact front-to-back compositing: the kernels see the Gaussians in depth order, as records
-        from vid2haircut.render import numba_exact
+        from vid2haircut.render import numba_records
 
         tab = table.detach().contiguous().numpy()
-        # one cache-line record per Gaussian: its row, depth and window (numba_exact.gaussian_records)
-        gpar_sorted, rec_wint, rec_wflt = numba_exact.gaussian_records(tab.shape[0], tab.dtype)
+        # one cache-line record per Gaussian: its row, depth and window (numba_records.gaussian_records)
+        gpar_sorted, rec_wint, rec_wflt = numba_records.gaussian_records(tab.shape[0], tab.dtype)
         with _LOCK:
             _numba_threads()
-            order = numba_exact.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
+            order = numba_records.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
             if exact_windows:  # the windows computed into the records
-                frame_np = numba_exact.gather_windows(order, tab, covs.detach().contiguous().numpy(),
+                frame_np = numba_records.gather_windows(order, tab, covs.detach().contiguous().numpy(),
                                                       valid.contiguous().numpy(), frame_np, height, width, power_min, 4,
                                                       gpar_sorted, rec_wint, rec_wflt)
             else:
-                frame_np = numba_exact.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint,
+                frame_np = numba_records.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint,
                                                         rec_wflt)
         wint, wflt, z_np = rec_wint, rec_wflt, gpar_sorted[:, 5]  # (strided views of the records)
     head = None

@@ -47,7 +47,7 @@ from vid2haircut.render.numba_walk import (C_AMAX, C_AMIN, C_RATIO, G_C, G_MX, G
 
 GATHER_AHEAD = 16
 """How many rows ahead the gathers of scattered rows prefetch (:func:`reduce_gradients`: the
-instances of Gaussian g + 16, 16 and 32 measured alike, 8 slower; :func:`.numba_exact.gather_gaussians`)."""
+instances of Gaussian g + 16, 16 and 32 measured alike, 8 slower; :mod:`.numba_records`)."""
 N_ACC = 8  # per-instance accumulators: sum gp dx, gp dy, gp dx^2, gp dx dy, gp dy^2, dL/dz, dL/dc, dL/ds
 _PAR = dict(cache=True, parallel=True, error_model="numpy")
 
