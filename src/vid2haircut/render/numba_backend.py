@@ -146,16 +146,16 @@ class _Plan:
         from vid2haircut.render import numba_tiles, numba_walk
 
         self.wint, self.wflt = wint, wflt
+        self.exact = t_min is not None  # front to back (numba_exact), the Gaussians numbered by depth
         self.has_head = head is not None
         self.head = head if head is not None else np.zeros((1, 1, 1), dtype)
         with _LOCK:
             _numba_threads()
             hmax = numba_tiles.tile_head_max(self.head, self.has_head, batch, width, height, TILE)
-            exact = t_min is not None  # (box codes for the exact model's walk: numba_tiles.bin_windows)
             self.gstart, self.inst_pos, self.tile_start, self.sorted_g, boxes, inst_csr = numba_tiles.bin_windows(
-                wint, wflt, frame, batch, width, height, TILE, z, hmax, exact)
-            self.boxes = boxes if exact else None
-            self.inst_csr = inst_csr if exact else None
+                wint, wflt, frame, batch, width, height, TILE, z, hmax, self.exact)
+            self.boxes = boxes if self.exact else None  # (box codes for the exact model's walk)
+            self.inst_csr = inst_csr if self.exact else None
             bounds = numba_walk.tile_bounds(self.tile_start, self.sorted_g, wint, self.boxes, width, height, TILE)
         bounds = bounds + TILE  # room for the zeros of the walk's last 16-lane store (numba_simd)
         self.offsets = np.concatenate([[0], np.cumsum(bounds)[:-1]]).astype(np.int64)
@@ -165,7 +165,6 @@ class _Plan:
         self.nbins = int(consts.bins) if consts.shading else 1
         self.vis_weight = float(consts.vis_weight)
         self.shape = (batch, height, width)
-        self.exact = t_min is not None  # front to back (numba_exact), the Gaussians numbered by depth
         self.t_min = float(t_min) if self.exact else 0.0
         self.shade = bool(consts.shading)
         self.order = None  # exact: [G] the Gaussians' depth order (numba_records.depth_order)
@@ -345,7 +344,7 @@ def composite_fused(
         with _LOCK:
             _numba_threads()
             numba_windows.gaussian_windows(means.numpy(), covs.detach().contiguous().numpy(),
-                                         valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
+                                           valid.contiguous().numpy(), height, width, power_min, 4, 8, wint, wflt)
     frame_np = frame.to(torch.int64).contiguous().numpy()
     order = gpar_sorted = None
     if t_min is None:
@@ -362,11 +361,11 @@ def composite_fused(
             order = numba_records.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
             if exact_windows:  # the windows computed into the records
                 frame_np = numba_records.gather_windows(order, tab, covs.detach().contiguous().numpy(),
-                                                      valid.contiguous().numpy(), frame_np, height, width, power_min, 4,
-                                                      gpar_sorted, rec_wint, rec_wflt)
+                                                        valid.contiguous().numpy(), frame_np, height, width,
+                                                        power_min, 4, gpar_sorted, rec_wint, rec_wflt)
             else:
-                frame_np = numba_records.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted, rec_wint,
-                                                        rec_wflt)
+                frame_np = numba_records.gather_gaussians(order, tab, wint, wflt, frame_np, gpar_sorted,
+                                                          rec_wint, rec_wflt)
         wint, wflt, z_np = rec_wint, rec_wflt, gpar_sorted[:, 5]  # (strided views of the records)
     head = None
     if head_depth is not None:  # compared in the input dtype, as the torch kernels do
@@ -374,7 +373,7 @@ def composite_fused(
     plan = _Plan(wint, wflt, frame_np, z_np, head, consts, batch, height,
                  width, np.float32 if dt == torch.float32 else np.float64, silhouette_ratio, t_min)
     plan.order = order
-    plan.gpar_sorted = gpar_sorted if order is not None else None
+    plan.gpar_sorted = gpar_sorted
     zs = z * (1.0 / consts.depth_bin) if order is None else None  # bin units, rounded like the torch kernels
     log_t, wz, wdirs, log_t2, visible = _FusedComposite.apply(table, zs, plan)
     if plan.exact:  # the kernels' silhouette (in the second silhouette's slot)
