@@ -364,4 +364,8 @@ def test_signature_leaves_out_the_default_compositing():
     z, mask = torch.zeros(3, 2, 2), torch.ones(2, 2, dtype=torch.bool)
     sig = _signature(Stage2Config(), data, z, mask)
     assert _signature(apply_overrides(Stage2Config(), {"render": {"t_min": 1e-3}}), data, z, mask) == sig
-    assert _signature(apply_overrides(Stage2Config(), {"render": {"compositing": "exact"}}), data, z, mask) != sig
+    exact = _signature(apply_overrides(Stage2Config(), {"render": {"compositing": "exact"}}), data, z, mask)
+    assert exact != sig
+    assert _signature(apply_overrides(Stage2Config(), {"gate_bins_every": 10}), data, z, mask) == sig  # (exact's alone)
+    assert _signature(apply_overrides(Stage2Config(), {"render": {"compositing": "exact"}, "gate_bins_every": 10}),
+                      data, z, mask) not in (sig, exact)

@@ -219,3 +219,29 @@ def test_hidden_direction_term_reaches_only_the_strands_the_gate_shuts(toy, sour
     off = Stage2Model(toy.data, toy.codec, _cfg(weights={"hidden_direction": 1.0},
                                                 switches={"use_visibility": False}), z0, m0)
     assert "hidden_direction" not in off.get_loss_dict(0)                  # nothing is hidden from the gate
+
+
+def test_gate_from_binned_renders_with_exact_compositing(toy):
+    """``gate_bins_every``: with exact compositing the gate takes the binned model's visibility of
+    the same strands, made at the steps divisible by it and kept in between; the images stay exact."""
+    pytest.importorskip("numba")
+    z0, m0 = _start(toy)
+    cfg = _cfg(render={"n_points": 16, "compositing": "exact"}, gate_bins_every=2, render_dense=0)
+    model = Stage2Model(toy.data, toy.codec, cfg, z0, m0)
+    seen = []
+    for step in range(3):
+        model.get_loss_dict(step)
+        out, moved, frames = model.last_render, model.last_deformed, model.last_frames
+        with torch.no_grad():
+            bins = render_frames(moved, toy.data, frames, dataclasses.replace(cfg.render, compositing="bins"))
+            exact = render_frames(moved, toy.data, frames, cfg.render)
+        assert torch.equal(out.visibility, bins.visibility)
+        assert torch.equal(out.depth.detach(), exact.depth)  # the images: the exact model's
+        assert torch.equal(model.gate.mask, point_visibility(gate_visibility(bins.visibility, cfg.visibility_unit)))
+        seen.append(out.visibility)
+    assert seen[1] is seen[0] and seen[2] is not seen[0]  # made at steps 0 and 2, kept at step 1
+    plain = Stage2Model(toy.data, toy.codec, dataclasses.replace(cfg, gate_bins_every=0), z0, m0)
+    plain.get_loss_dict(0)
+    with torch.no_grad():
+        exact = render_frames(plain.last_deformed, toy.data, plain.last_frames, cfg.render)
+    assert torch.equal(plain.last_render.visibility, exact.visibility)  # 0: the exact render's own

@@ -284,6 +284,17 @@ class Stage2Config:
     """With ``render_dense``: the compositing weight at which a dense strand's segment counts as
     visible to the visibility gate (in place of ``render.vis_weight``, which stays the guides' and
     drives the observed-texel test and the anchor)."""
+    gate_bins_every: int = 0
+    """With ``render.compositing: exact``: the visibility that the gate (and the hidden-direction
+    term, and before the dense strands the observed-texel test) takes from Stage 2's render with
+    gradients comes from a forward render of the same strands with the binned model instead, made at
+    every step divisible by this (and when the frames or strands change; 0: the exact render's own).
+    The exact model's visibility (alpha T at a pixel) gating its own gradients fails on the wavy
+    style of the first draw (Chamfer_pts 0.0609 and 0.0635 for two seeds against the bins' 0.0465),
+    the binned model's visibility with the exact images does not (0.0480 and 0.0476 every step,
+    0.0483 every 5 steps, 0.0489 every 20; ``benchmarks/RESULTS.md``, "Exact compositing on the wavy
+    style: the visibility gate"). A multiple of it for ``checkpoint_every`` keeps a resumed fit the
+    same."""
     hidden_direction_from: str = "render"
     """What the hidden-direction term (``weights.hidden_direction``) aligns a segment the gate shuts
     with: "render", the rendered direction of the fitted hair drawn over it in that keyframe

@@ -145,6 +145,7 @@ def _signature(cfg: Stage2Config, data: FitData, z: torch.Tensor, mask: torch.Te
         d.pop(key, None)
     if d["render"]["compositing"] == "bins":  # the default model: the signature of the fits made before the choice
         del d["render"]["compositing"], d["render"]["t_min"]
+        d.pop("gate_bins_every", None)  # (the exact model's alone)
     h = hashlib.sha256(json.dumps({"cfg": d, "frames": data.frames}, sort_keys=True).encode())
     for t in (z, mask, data.mask, data.cam_from_head):
         h.update(np.ascontiguousarray(t.detach().cpu().numpy(), np.float32).tobytes())

@@ -29,6 +29,7 @@ _RANGES = {"length_spread": (0.0, 1.0 / 3.0), "tip_scatter": (0.0, 0.05), "carve
            "map_res": (2, 1025), "n_dense": (1, math.inf), "seed": (0, 2**63), "canonical_steps": (0, math.inf),
            "ramp_steps": (0, math.inf), "n_keyframes": (1, math.inf), "frames_per_step": (0, math.inf),
            "lr_decay_steps": (0, math.inf), "checkpoint_every": (0, math.inf), "render_dense": (0, math.inf),
+           "gate_bins_every": (0, math.inf),
            "dense_from_step": (-1, math.inf), "size": (8, 4097), "n_points": (2, 1025), "bins": (2, 257),
            # rates, widths, fractions
            "lr_prior": (0.0, math.inf), "weight_decay_prior": (0.0, math.inf), "lr_z": (0.0, math.inf),

@@ -88,6 +88,7 @@ class Stage2Model(nn.Module):
         # with cfg.render_dense: the guide whose offsets move each dense strand (the nearest in uv)
         self._dense_owner = self._nearest_guides(mask) if cfg.render_dense > 0 else None
         self.last_render = None
+        self._bins_vis: dict[tuple, Tensor] = {}  # cfg.gate_bins_every: the binned visibility per (frames, shape)
         self.last_frames: Tensor | None = None
         self.last_deformed: Tensor | None = None
 
@@ -212,6 +213,17 @@ class Stage2Model(nn.Module):
         seg_len = (per_frame[:, :, 1:] - per_frame[:, :, :-1]).norm(dim=-1)
         return rechain(per_frame + offs, seg_len), offs, g_moved
 
+    def _binned_visibility(self, moved: Tensor, frames: Tensor, drawing, step: int) -> Tensor:
+        """(B,N,P-1) bool: the visibility of ``moved`` (B,N,P,3) in ``frames`` rendered with the binned
+        model (``cfg.gate_bins_every``), made at the steps divisible by it and when these frames or
+        this strand count have none yet, else the last one made."""
+        key = (tuple(frames.tolist()), tuple(moved.shape))
+        if step % self.cfg.gate_bins_every == 0 or key not in self._bins_vis:
+            with torch.no_grad():
+                self._bins_vis[key] = render_frames(moved.detach(), self.data, frames,
+                                                    dataclasses.replace(drawing, compositing="bins")).visibility
+        return self._bins_vis[key]
+
     def _fine_only(self, z: Tensor, canon: Tensor, first: int) -> Tensor:
         """(N,P,3) the canonical guides ``canon`` (decoded from the map ``z``) with the same values,
         through which gradients reach only the components ``first``.. of ``z`` (``canon`` for 0)."""
@@ -234,6 +246,8 @@ class Stage2Model(nn.Module):
             cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity,
             vis_weight=cfg.dense_vis_weight)
         out = render_frames(moved, self.data, frames, drawing)
+        if cfg.gate_bins_every > 0 and drawing.compositing != "bins":
+            out = out._replace(visibility=self._binned_visibility(moved, frames, drawing, step))
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
             # what the guides show: their visibility, which is the opaque render's (no translucent silhouette)
