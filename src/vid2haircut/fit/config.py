@@ -293,7 +293,7 @@ class Stage2Config:
     style of the first draw (Chamfer_pts 0.0609 and 0.0635 for two seeds against the bins' 0.0465),
     the binned model's visibility with the exact images does not (0.0480 and 0.0476 every step,
     0.0483 every 5 steps, 0.0489 every 20, through a diagnostic script; 0.0491 with this setting at
-    10). With 10, the first draw's Stage 2 gives 0.0348 / 0.2242 against the bins' 0.0345 / 0.2237
+    10). With 10, the first draw's Stage 2 gives 0.0348 / 0.2242 against the bins' 0.0344 / 0.2237
     (``benchmarks/RESULTS.md``, "Exact compositing on the wavy style: the visibility gate"). A
     multiple of it for ``checkpoint_every`` keeps a resumed fit the same."""
     hidden_direction_from: str = "render"
