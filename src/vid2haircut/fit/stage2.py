@@ -219,9 +219,10 @@ class Stage2Model(nn.Module):
         this strand count have none yet, else the last one made."""
         key = (tuple(frames.tolist()), tuple(moved.shape))
         if step % self.cfg.gate_bins_every == 0 or key not in self._bins_vis:
+            # (opaque: the visibility is the opaque render's either way, without a second silhouette to walk)
+            binned = dataclasses.replace(drawing, compositing="bins", silhouette_opacity=1.0)
             with torch.no_grad():
-                self._bins_vis[key] = render_frames(moved.detach(), self.data, frames,
-                                                    dataclasses.replace(drawing, compositing="bins")).visibility
+                self._bins_vis[key] = render_frames(moved.detach(), self.data, frames, binned).visibility
         return self._bins_vis[key]
 
     def _fine_only(self, z: Tensor, canon: Tensor, first: int) -> Tensor:
