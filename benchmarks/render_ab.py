@@ -13,7 +13,7 @@ Both sides compile their numba kernels once (the base's into the temporary folde
 
     .venv/bin/python benchmarks/render_ab.py --base d326216 [--strands 4000] [--size 256] [--frames 1]
                                              [--threads N] [--rounds 3] [--repeat 15] [--kernels]
-                                             [--compositing bins|exact]
+                                             [--compositing auto|bins|exact]
 """
 
 from __future__ import annotations
@@ -32,6 +32,8 @@ import time
 from pathlib import Path
 
 import torch
+
+from vid2haircut.render.api import resolve_compositing
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from render_bench import add_scene_args, forward_backward, setup  # noqa: E402  (the benchmark scene, its loss)
@@ -72,7 +74,8 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--repeat", type=int, default=15, help="calls of each per round (the best is printed)")
     ap.add_argument("--kernels", action="store_true", help="also print each numba kernel's best time per round")
-    ap.add_argument("--compositing", default="bins", choices=["bins", "exact"], help="the compositing model")
+    ap.add_argument("--compositing", default="auto", choices=["auto", "bins", "exact"],
+                    help="the compositing model (auto: the renderer's default, exact with numba)")
     args = ap.parse_args(argv)
     if args.threads:
         torch.set_num_threads(args.threads)
@@ -83,7 +86,7 @@ def main(argv=None) -> int:
         present = importlib.import_module("vid2haircut.render").render_strands
         pts, K, E, hd = setup(args.strands, args.size, args.frames, "cpu")
         pts.requires_grad_(True)
-        opt = dict(compositing=args.compositing)
+        opt = dict(compositing=resolve_compositing(args.compositing, "numba"))  # (a base may predate "auto")
         call = {"base": lambda: forward_backward(pts, K, E, hd, args.size, "numba", base, **opt),
                 "present": lambda: forward_backward(pts, K, E, hd, args.size, "numba", present, **opt)}
         (a, ga), (b, gb) = call["base"](), call["present"]()  # also compiles both

@@ -10,7 +10,7 @@ the ceiling is a single-core figure.
 
 Usage:
     python benchmarks/render_bench.py [--quick] [--breakdown] [--device cpu|cuda] [--threads N] [--frames B]
-                                      [--backend auto|numba|torch] [--compositing bins|exact] [--repeat N]
+                                      [--backend auto|numba|torch] [--compositing auto|bins|exact] [--repeat N]
                                       [--rounds R]
 
 On a machine whose speed drifts (shared VMs: the same call measured 59 ms, then 100+ ms, within
@@ -39,7 +39,7 @@ import torch
 from vid2haircut.camera import intrinsics_from_fov, look_at
 from vid2haircut.machine import machine_info, machine_summary
 from vid2haircut.render import render_strands
-from vid2haircut.render.api import DEFAULT_ALPHA_MIN
+from vid2haircut.render.api import DEFAULT_ALPHA_MIN, resolve_compositing
 from vid2haircut.render.footprint import build_footprint
 from vid2haircut.render.gaussians import segment_gaussians
 from vid2haircut.render.numba_backend import resolve_backend
@@ -133,7 +133,7 @@ def scene_call(args: argparse.Namespace, **options):
 
 
 def bench_case(n_strands: int, size: int, device: str, repeat: int, frames: int = 1, backend: str = "auto",
-               compositing: str = "bins") -> dict:
+               compositing: str = "auto") -> dict:
     pts, K, E, hd = setup(n_strands, size, frames, device)
     pts.requires_grad_(True)
 
@@ -216,8 +216,9 @@ def main(argv=None) -> int:
     ap.add_argument("--frames", type=int, default=1, help="frames per call (times are per frame)")
     ap.add_argument("--backend", default="auto", choices=["auto", "numba", "torch"],
                     help="compositing kernels (auto: numba on CPU when installed, else torch)")
-    ap.add_argument("--compositing", default="bins", choices=["bins", "exact"],
-                    help="the renderer's compositing model (exact: front to back with early termination, numba)")
+    ap.add_argument("--compositing", default="auto", choices=["auto", "bins", "exact"],
+                    help="the renderer's compositing model (auto, the default: exact with the numba backend, else "
+                         "bins; exact: front to back with early termination, numba)")
     ap.add_argument("--repeat", type=int, default=3, help="timed runs per case (the best is printed)")
     ap.add_argument("--rounds", type=int, default=1,
                     help="run every case this many times in turn and print each column's best (drifting machines)")
@@ -230,7 +231,7 @@ def main(argv=None) -> int:
     repeat = args.repeat
     backend = resolve_backend(args.backend, torch.zeros(1, device=args.device))
     print(f"device: {args.device}; {machine_summary(machine_info(args.device))}; "
-          f"backend: {backend}; compositing: {args.compositing}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
+          f"backend: {backend}; compositing: {resolve_compositing(args.compositing, backend)}; frames per call: {args.frames}; GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT', 'unset')}; "
           f"load average: {', '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     header = ("| strands x 32 pts | image | segments | contributions T | forward ms | fwd+bwd ms | scatter_add_ T ms "
               "| fwd+bwd / scatter |\n|---|---|---|---|---|---|---|---|")

@@ -3,7 +3,9 @@
 Times forward+backward of ``render_bench.py``'s scene (silhouette + normalised depth + direction,
 best of ``--repeat``) three ways, alternating, in one process:
 
-- ``full``: the renderer as it is;
+- ``full``: the renderer with the binned compositing model (``compositing="bins"``, whose two
+  kernels the other variants replace; the exact model, the numba backend's default, walks the
+  same windows in depth order);
 - ``walk``: the two compositing kernels replaced by the window walk alone (every (Gaussian,
   pixel) contribution listed with its power, without z_ref) and alpha and log(1 - alpha) of each,
   the least any compositing model over these windows must do, and a backward pass that returns
@@ -62,7 +64,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=15, help="timed runs per variant and round (the best counts)")
     ap.add_argument("--rounds", type=int, default=3, help="rounds of the three variants, alternating")
     args = ap.parse_args(argv)
-    call = scene_call(args)
+    call = scene_call(args, compositing="bins")
     real = numba_kernels.composite_forward, numba_kernels.composite_backward
     variants = {"full": real, "walk": (walk_only, _no_backward), "none": (_no_forward, _no_backward)}
     print(f"{args.frames} x {args.strands} strands x 32 points at {args.size}x{args.size}, {torch.get_num_threads()} threads; "

@@ -7,7 +7,7 @@ kernel, the best and the median milliseconds, and what is left of the whole call
 channels and loss, Python).
 
     .venv/bin/python benchmarks/render_kernels.py [--strands 4000] [--size 256] [--frames 1] [--calls 20] [--threads N]
-        [--compositing bins|exact]
+        [--compositing auto|bins|exact]
 """
 
 from __future__ import annotations
@@ -74,7 +74,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_scene_args(ap)
     ap.add_argument("--calls", type=int, default=20, help="timed forward+backward calls (after 3 warm-ups)")
-    ap.add_argument("--compositing", default="bins", choices=["bins", "exact"], help="the compositing model")
+    ap.add_argument("--compositing", default="auto", choices=["auto", "bins", "exact"],
+                    help="the compositing model (auto: the renderer's default, exact with numba)")
     args = ap.parse_args(argv)
     call = scene_call(args, compositing=args.compositing)
     times: dict[str, float] = {}

@@ -2,16 +2,22 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import torch
 
 from vid2haircut.camera import intrinsics_from_fov, look_at
-from vid2haircut.render import mesh_depth
+from vid2haircut.render import mesh_depth, render_strands
 from vid2haircut.render.numba_backend import numba_available
 
 DT = torch.float64
 BACKENDS = ["torch", pytest.param("numba", marks=pytest.mark.skipif(not numba_available(), reason="needs numba"))]
+render_bins = functools.partial(render_strands, compositing="bins")
+"""``render_strands`` with the binned compositing model, which both backends implement: the model
+that the backend-parametrised tests check (the numba backend's default, the exact model, has its
+own tests in test_render_exact.py, which also reruns the physical tests with it)."""
 
 
 @pytest.fixture(params=BACKENDS)

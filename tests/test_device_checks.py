@@ -66,7 +66,7 @@ def test_render_floor_walk_lists_the_renderers_elements(capsys):
     numba_kernels.composite_forward = both
     try:
         pts, K, E, hd = setup(200, 64, 1, "cpu")
-        render_strands(pts, K, E, 64, 64, head_depth=hd, backend="numba")
+        render_strands(pts, K, E, 64, 64, head_depth=hd, backend="numba", compositing="bins")
     finally:
         numba_kernels.composite_forward = real
     (elems, e_range, elems_w, e_range_w), = seen

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 import torch
 
-from vid2haircut.render import render_strands
 
 sys.path.insert(0, str(Path(__file__).parent))
 from render_scenes import (BACKENDS, DT, backend, line, orbit_camera, quad_depth, random_scene,  # noqa: E402,F401
                            simple_camera)
+from render_scenes import render_bins as render_strands  # noqa: E402  (the binned model on both backends)
 
 
 def test_bad_input_raises_clear_errors():

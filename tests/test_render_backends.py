@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from vid2haircut.camera import look_at
-from vid2haircut.render import render_strands
 from vid2haircut.render.numba_backend import numba_available, resolve_backend
 
 from render_scenes import DT, orbit_camera, quad_depth, random_scene  # noqa: F401
+from render_scenes import render_bins as render_strands  # (the binned model on both backends)
 
 
 def _backend_scene(dtype):

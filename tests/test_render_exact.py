@@ -192,6 +192,28 @@ def test_bad_options():
             apply_overrides(Stage2Config(), {"render": bad})
 
 
+def test_default_is_exact_on_numba_and_bins_on_torch():
+    """``compositing="auto"`` (the default) is the exact model where the numba kernels render and the
+    binned one on the torch kernels (CUDA's), the same render to the bit as naming it."""
+    from vid2haircut.render.api import resolve_compositing
+
+    size = 20
+    pts = torch.tensor(tr.random_scene(1, spread=0.03))
+    K, E = (torch.tensor(a) for a in tr.orbit_camera(size))
+    for backend, model in (("numba", "exact"), ("torch", "bins")):
+        assert resolve_compositing("auto", backend) == model and resolve_compositing("bins", backend) == "bins"
+        default = render_strands(pts, K, E, size, size, backend=backend)
+        named = render_strands(pts, K, E, size, size, backend=backend, compositing=model)
+        for name in ("silhouette", "depth", "direction", "visibility"):
+            assert torch.equal(getattr(default, name), getattr(named, name)), (backend, name)
+    auto = render_strands(pts, K, E, size, size)  # the CPU's default backend with numba installed
+    bins = render_strands(pts, K, E, size, size, compositing="bins")
+    assert torch.equal(auto.silhouette, exact(pts, K, E, size, size).silhouette)
+    assert not torch.equal(auto.silhouette, bins.silhouette)  # (the two models differ on this scene)
+    with pytest.raises(ValueError, match="compositing must be one of"):
+        resolve_compositing("sorted", "numba")
+
+
 def test_same_result_for_any_thread_count_and_projection_path():
     """Bit for bit the same at 1 and 2 threads; with cameras requiring gradients (torch's projection
     and windows) the same render to round-off, and a gradient reaches the intrinsics."""

@@ -12,11 +12,12 @@ import pytest
 import torch
 
 from vid2haircut.camera import look_at
-from vid2haircut.render import mesh_depth, render_strands, segment_gaussians
+from vid2haircut.render import mesh_depth, segment_gaussians
 
 sys.path.insert(0, str(Path(__file__).parent))
 from render_scenes import (BACKENDS, DT, backend, line, orbit_camera, quad_depth, random_scene,  # noqa: E402,F401
                            simple_camera)
+from render_scenes import render_bins as render_strands  # noqa: E402  (the binned model on both backends)
 
 
 # ---------------------------------------------------------------- batching and shapes

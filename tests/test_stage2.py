@@ -19,6 +19,7 @@ from vid2haircut.fit.settings import apply_overrides
 from vid2haircut.fit.stage2 import checkpoint_state, fit_stage2, Stage2Model
 from vid2haircut.fit.toy import write_toy_files
 from vid2haircut.fit.visibility import gate_visibility
+from vid2haircut.render.numba_backend import numba_available
 
 sys.path.insert(0, str(Path(__file__).parent))
 from stage2_common import FAST, cfg as _cfg, make_toy, start as _start  # noqa: E402
@@ -352,20 +353,27 @@ def test_bad_stage_files_and_outputs(toy, tmp_path, caplog):
         run_stage2(*common, s1, tmp_path / "s2b", settings=s2_settings, progress=False)
 
 
-def test_signature_leaves_out_the_default_compositing():
-    """A checkpoint made before ``render.compositing`` existed still resumes: with the default
-    (bins) neither it nor ``t_min`` enters the signature; the exact model gives another one."""
+def test_signature_of_the_compositing_models():
+    """A checkpoint made before ``render.compositing`` existed still resumes with the binned model:
+    neither it, ``t_min`` nor ``gate_bins_every`` enters its signature. The default ("auto") signs
+    as the model it names on the fit's device ("exact" on the CPU with numba), and the exact model's
+    ``gate_bins_every`` is part of its signature."""
     from types import SimpleNamespace
 
     from vid2haircut.fit.config import Stage2Config
     from vid2haircut.fit.pipeline import _signature
 
-    data = SimpleNamespace(frames=[0, 4], mask=torch.ones(2, 4, 4), cam_from_head=torch.eye(4).expand(2, 4, 4))
+    data = SimpleNamespace(frames=[0, 4], mask=torch.ones(2, 4, 4), cam_from_head=torch.eye(4).expand(2, 4, 4),
+                           K=torch.eye(3).expand(2, 3, 3))
     z, mask = torch.zeros(3, 2, 2), torch.ones(2, 2, dtype=torch.bool)
-    sig = _signature(Stage2Config(), data, z, mask)
-    assert _signature(apply_overrides(Stage2Config(), {"render": {"t_min": 1e-3}}), data, z, mask) == sig
-    exact = _signature(apply_overrides(Stage2Config(), {"render": {"compositing": "exact"}}), data, z, mask)
-    assert exact != sig
-    assert _signature(apply_overrides(Stage2Config(), {"gate_bins_every": 10}), data, z, mask) == sig  # (exact's alone)
-    assert _signature(apply_overrides(Stage2Config(), {"render": {"compositing": "exact"}, "gate_bins_every": 10}),
-                      data, z, mask) not in (sig, exact)
+
+    def sig(over):
+        return _signature(apply_overrides(Stage2Config(), over), data, z, mask)
+
+    bins = sig({"render": {"compositing": "bins"}})
+    assert sig({"render": {"compositing": "bins", "t_min": 1e-3}, "gate_bins_every": 10}) == bins
+    exact = sig({"render": {"compositing": "exact"}})
+    assert exact != bins and sig({"render": {"compositing": "exact"}, "gate_bins_every": 10}) not in (bins, exact)
+    if numba_available():
+        assert sig({}) == exact
+        assert sig({"render": {"t_min": 1e-3}}) != exact

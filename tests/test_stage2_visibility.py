@@ -245,3 +245,8 @@ def test_gate_from_binned_renders_with_exact_compositing(toy):
     with torch.no_grad():
         exact = render_frames(plain.last_deformed, toy.data, plain.last_frames, cfg.render)
     assert torch.equal(plain.last_render.visibility, exact.visibility)  # 0: the exact render's own
+    # the default: "auto" compositing is the exact model on the CPU, with the gate from the bins every 5 steps
+    default = Stage2Model(toy.data, toy.codec, _cfg(render={"n_points": 16}), z0, m0)
+    assert default.cfg.gate_bins_every == 5 and default._gate_from_bins
+    binned = _cfg(render={"n_points": 16, "compositing": "bins"})
+    assert not Stage2Model(toy.data, toy.codec, binned, z0, m0)._gate_from_bins

@@ -12,8 +12,9 @@ DEPTH_ALIGNMENTS = ("quantile", "affine")
 """How the depth term aligns a render's depth with the target's (:func:`vid2haircut.fit.image_terms.depth_loss`)."""
 SMOOTH_DIRECTION_FORMS = ("absolute", "relative", "change")
 """What the direction smoothness penalises (:func:`vid2haircut.fit.losses.smoothness_losses`)."""
-COMPOSITINGS = ("bins", "exact")
-"""The renderer's compositing models (:func:`vid2haircut.render.render_strands`, ``compositing``)."""
+COMPOSITINGS = ("auto", "bins", "exact")
+"""The renderer's compositing models (:func:`vid2haircut.render.render_strands`, ``compositing``;
+"auto": "exact" on the CPU's numba kernels, "bins" on the torch ones, CUDA)."""
 HIDDEN_DIRECTION_SOURCES = ("render", "target")
 """What :func:`vid2haircut.fit.scene.hidden_direction_term` aligns hidden segments with
 (``Stage2Config.hidden_direction_from``)."""
@@ -141,13 +142,14 @@ class RenderSettings:
     """Depth-compositing bins of the renderer."""
     depth_bin: float = 0.002
     """Depth-bin size of the renderer, metres."""
-    compositing: str = "bins"
-    """The renderer's compositing model: "bins" (depth-binned; every figure of the README's Quality
-    section) or "exact" (front to back in depth order, each pixel stopping once its transmittance
-    falls below ``t_min``; CPU only, numba backend). Measured on the first quality draw (Zen 3,
-    ``benchmarks/RESULTS.md``, "Exact front-to-back compositing with early termination, built"):
-    Stage 2 0.0387 against the bins' 0.0345 (1e-4 m^2), level on five styles, the wavy one failing:
-    the other defaults were tuned with the bins."""
+    compositing: str = "auto"
+    """The renderer's compositing model: "exact" (front to back in depth order, each pixel stopping
+    once its transmittance falls below ``t_min``; CPU only, numba backend), "bins" (depth-binned;
+    CPU and CUDA) or "auto" (Stage 2's default: "exact" on the CPU, "bins" on CUDA). Stage 2 fitted
+    with the exact model needs the binned model's visibility for its gate
+    (``Stage2Config.gate_bins_every``); Stage 1 keeps the bins (``Stage1Config.render``). Measured
+    on the quality benchmark in ``benchmarks/RESULTS.md``, "Exact compositing on the wavy style: the
+    visibility gate" and "Exact compositing as Stage 2's default"."""
     t_min: float = 1e-4
     """Transmittance at which a pixel stops compositing with ``compositing: exact``."""
     vis_weight: float = 0.3

@@ -72,8 +72,11 @@ class Stage1Config:
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01))
     """Loss weights (Stage 1 uses silhouette, direction, depth, penetration and bend only; depth 0.01 as
     Im2Haircut, penetration 1e4 as Vid2Haircut: Im2Haircut's 0.3 leaves strands inside the head)."""
-    render: RenderSettings = field(default_factory=RenderSettings)
-    """Guide rendering settings."""
+    render: RenderSettings = field(default_factory=lambda: RenderSettings(compositing="bins"))
+    """Guide rendering settings, with the binned compositing model: with the exact one the first
+    quality draw's Stage 1 gave 0.0740 / 0.2566 against 0.0731 / 0.2567 (Chamfer_pts 1e-4 m^2 /
+    Chamfer_angle; worse on four of six styles), and Stage 1's 100 steps take ~5 s either way
+    (``benchmarks/RESULTS.md``, "Exact compositing as Stage 2's default")."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
     length_spread: float = LENGTH_SPREAD
@@ -284,18 +287,19 @@ class Stage2Config:
     """With ``render_dense``: the compositing weight at which a dense strand's segment counts as
     visible to the visibility gate (in place of ``render.vis_weight``, which stays the guides' and
     drives the observed-texel test and the anchor)."""
-    gate_bins_every: int = 0
-    """With ``render.compositing: exact``: the visibility that the gate (and the hidden-direction
-    term, and before the dense strands the observed-texel test) takes from Stage 2's render with
-    gradients comes from a forward render of the same strands with the binned model instead, made at
-    every step divisible by this (and when the frames or strands change; 0: the exact render's own).
-    The exact model's visibility (alpha T at a pixel) gating its own gradients fails on the wavy
-    style of the first draw (Chamfer_pts 0.0609 and 0.0635 for two seeds against the bins' 0.0465),
-    the binned model's visibility with the exact images does not (0.0480 and 0.0476 every step,
-    0.0483 every 5 steps, 0.0489 every 20, through a diagnostic script; 0.0491 with this setting at
-    10). With 10, the first draw's Stage 2 gives 0.0348 / 0.2242 against the bins' 0.0344 / 0.2237
-    (``benchmarks/RESULTS.md``, "Exact compositing on the wavy style: the visibility gate"). A
-    multiple of it for ``checkpoint_every`` keeps a resumed fit the same."""
+    gate_bins_every: int = 5
+    """With the exact compositing model (``render.compositing`` "exact", or "auto" on the CPU): the
+    visibility that the gate (and the hidden-direction term, and before the dense strands the
+    observed-texel test) takes from Stage 2's render with gradients comes from a forward render of
+    the same strands with the binned model instead, made at every step divisible by this (and when
+    the frames or strands change; 0: the exact render's own). The exact model's visibility (alpha T
+    at a pixel) gating its own gradients fails on the wavy style of the first draw (Chamfer_pts
+    0.0609 and 0.0635 for two seeds against the bins' 0.0465); the binned model's visibility with
+    the exact images does not (0.0480 and 0.0476 every step, 0.0483 every 5 steps, 0.0489 every 20,
+    through a diagnostic script). At 5 the first draw's Stage 2 gives 0.0347 / 0.2240 and at 10
+    0.0348 / 0.2242, against the bins' 0.0344 / 0.2237 the same day (``benchmarks/RESULTS.md``,
+    "Exact compositing on the wavy style: the visibility gate"). A checkpoint holds the binned
+    visibility in use, so a resumed fit is the same."""
     hidden_direction_from: str = "render"
     """What the hidden-direction term (``weights.hidden_direction``) aligns a segment the gate shuts
     with: "render", the rendered direction of the fitted hair drawn over it in that keyframe

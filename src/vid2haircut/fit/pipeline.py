@@ -20,6 +20,7 @@ import torch
 from vid2haircut.fit.config import Stage1Config, Stage2Config
 from vid2haircut.fit.settings import apply_overrides, config_to_dict
 from vid2haircut.fit.data import FitData, load_fit_data
+from vid2haircut.fit.scene import drawn_compositing
 from vid2haircut.fit.outputs import (dense_strands, load_hairmap, load_torch, save_torch, stage_strands,
                                      write_hairmap, write_loss_curve, write_record, write_renders, write_strands)
 from vid2haircut.fit.stage1 import FitResult, fit_stage1, initial_hairmap, prior_view_input
@@ -143,7 +144,8 @@ def _signature(cfg: Stage2Config, data: FitData, z: torch.Tensor, mask: torch.Te
     d = config_to_dict(cfg)
     for key in ("checkpoint_every", "device", *DECODING_ONLY):
         d.pop(key, None)
-    if d["render"]["compositing"] == "bins":  # the default model: the signature of the fits made before the choice
+    d["render"]["compositing"] = drawn_compositing(cfg.render, data)  # ("auto": the model it names here)
+    if d["render"]["compositing"] == "bins":  # the signature of the fits made before the choice
         del d["render"]["compositing"], d["render"]["t_min"]
         d.pop("gate_bins_every", None)  # (the exact model's alone)
     h = hashlib.sha256(json.dumps({"cfg": d, "frames": data.frames}, sort_keys=True).encode())

@@ -21,6 +21,8 @@ from vid2haircut.fit.losses import TexelGraph, texel_graph
 from vid2haircut.prior.codec import StrandCodec
 from vid2haircut.prior.scalp import scalp_grid
 from vid2haircut.render import StrandRender, render_strands
+from vid2haircut.render.api import resolve_compositing
+from vid2haircut.render.numba_backend import resolve_backend
 
 __all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "hidden_direction_term",
            "HIDDEN_DIRECTION_SOURCES", "ZMap",
@@ -73,6 +75,12 @@ def decode_layout(z: Tensor, layout: GuideLayout, codec: StrandCodec) -> Tensor:
     """Guides of the layout from a (K,R,R) map -> (N,P,3) strands (P = codec.n_points), differentiable."""
     coeffs = z.flatten(1)[:, layout.texel_index].T                          # (N,K)
     return codec.decode(coeffs, layout.roots.to(z))
+
+
+def drawn_compositing(settings: RenderSettings, data: FitData) -> str:
+    """The compositing model ("bins" or "exact") that :func:`render_frames` draws ``data``'s
+    keyframes with under ``settings`` ("auto": "exact" where the numba backend renders, on the CPU)."""
+    return resolve_compositing(settings.compositing, resolve_backend("auto", data.K))
 
 
 def render_frames(points: Tensor, data: FitData, frames: Tensor, settings: RenderSettings,

@@ -31,8 +31,8 @@ from vid2haircut.fit.hidden import harmonic_extension, head_normals
 from vid2haircut.fit.losses import (anchor_loss, bend_loss, gravity_loss, motion_loss, pca_consistency_loss,
                                     penetration_loss, smoothness_losses, tip_height_loss,
                                     unit_directions)
-from vid2haircut.fit.scene import (ZMap, decode_layout, guide_layout, image_losses, length_step_gain, render_frames,
-                                   hidden_direction_term, outside_term, z_optimizer)
+from vid2haircut.fit.scene import (ZMap, decode_layout, drawn_compositing, guide_layout, image_losses, length_step_gain,
+                                   render_frames, hidden_direction_term, outside_term, z_optimizer)
 from vid2haircut.fit.stage1 import FitResult
 from vid2haircut.fit.trainer import History, Trainer, lr_decay_factor
 from vid2haircut.fit.visibility import (VisibilityGate, check_visibility_unit, gate_visibility, point_visibility,
@@ -89,6 +89,7 @@ class Stage2Model(nn.Module):
         self._dense_owner = self._nearest_guides(mask) if cfg.render_dense > 0 else None
         self.last_render = None
         self._bins_vis: dict[tuple, Tensor] = {}  # cfg.gate_bins_every: the binned visibility per (frames, shape)
+        self._gate_from_bins = cfg.gate_bins_every > 0 and drawn_compositing(cfg.render, data) == "exact"
         self.last_frames: Tensor | None = None
         self.last_deformed: Tensor | None = None
 
@@ -247,7 +248,7 @@ class Stage2Model(nn.Module):
             cfg.render, strand_width=cfg.dense_width, silhouette_opacity=cfg.dense_silhouette_opacity,
             vis_weight=cfg.dense_vis_weight)
         out = render_frames(moved, self.data, frames, drawing)
-        if cfg.gate_bins_every > 0 and drawing.compositing != "bins":
+        if self._gate_from_bins:
             out = out._replace(visibility=self._binned_visibility(moved, frames, drawing, step))
         self.gate.set_visibility(gate_visibility(out.visibility, cfg.visibility_unit))
         with torch.no_grad():
@@ -363,6 +364,7 @@ def fit_stage2(data: FitData, codec: StrandCodec, cfg: Stage2Config, z_init: Ten
     history, start = History(), 0
     if resume is not None:
         model.load_state_dict(resume["model"])
+        model._bins_vis = {(tuple(f), tuple(shape)): v.to(dev) for f, shape, v in resume.get("bins_visibility", [])}
         for opt, st in zip(optimizers, resume["optimizers"]):
             opt.load_state_dict(st)
         history, start = History.from_dict(resume["history"]), int(resume["step"]) + 1
@@ -385,7 +387,10 @@ def fit_stage2(data: FitData, codec: StrandCodec, cfg: Stage2Config, z_init: Ten
 
 
 def checkpoint_state(step: int, model: Stage2Model, trainer: Trainer) -> dict:
-    """Everything needed to resume after ``step`` (tensors on the CPU)."""
+    """Everything needed to resume after ``step`` (tensors on the CPU; with ``gate_bins_every``, the
+    binned visibility the gate holds until its next render, so that a resumed fit is the same for
+    any ``checkpoint_every``)."""
     return {"step": int(step), "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
             "optimizers": [opt.state_dict() for opt in trainer.optimizers],
-            "history": trainer.history.to_dict()}
+            "history": trainer.history.to_dict(),
+            "bins_visibility": [[list(f), list(shape), v.cpu()] for (f, shape), v in model._bins_vis.items()]}

@@ -114,7 +114,7 @@ def toy_problem(size: int = 40, n_frames: int = 3, map_res: int = 12, k: int = 1
     hd = mesh_depth(verts, torch.as_tensor(head.faces), Kt, cfh, size, size)
     with torch.no_grad():
         out = render_strands(guides[None].expand(len(poses), -1, -1, -1), Kt, cfh, size, size, strand_width=0.004,
-                             head_depth=hd)
+                             head_depth=hd, compositing="bins")
     targets = []
     angle = out.angle  # computed on each read
     for b in range(len(poses)):

@@ -275,7 +275,7 @@ def render_view(points: np.ndarray, head: Any, world_from_head: np.ndarray, cfg:
         hd = mesh_depth(torch.as_tensor(verts, dtype=torch.float32)[None],
                         torch.as_tensor(np.asarray(head.faces)), Kt, Wt, size, size)
         r = render_strands(torch.as_tensor(world, dtype=torch.float32)[None], Kt, Wt, size, size,
-                           strand_width=cfg.strand_width, head_depth=hd, bins=8)
+                           strand_width=cfg.strand_width, head_depth=hd, bins=8, compositing="bins")  # (the prior's training views)
     mask = r.mask[0].numpy()
     depth = relative_depth_quantile(r.depth[0].numpy(), mask)
     return ViewMaps(mask.astype(np.float32), r.angle[0].numpy().astype(np.float32), depth, mask.copy(), K, w2c)

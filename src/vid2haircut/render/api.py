@@ -12,8 +12,8 @@ documented in :mod:`vid2haircut.render.raster` and checked by tests/test_render.
 compositing model, exact front to back with early termination (``compositing="exact"``, numba
 backend only: :mod:`.numba_exact`), equals that reference to round-off where no pixel stops early
 (elsewhere the silhouette is within ``t_min``) and takes 0.43-0.70 of the
-binned model's time (README, Performance); the binned model stays the default (the fits' measured
-quality is the binned model's).
+binned model's time (README, Performance). It is the default where the numba backend renders
+(``compositing="auto"``); the torch kernels (any device, CUDA) have the binned model only.
 
 Performance (benchmarks/render_bench.py; 4k strands x 32 points = 124k segments at 256 x 256,
 7.6 M (Gaussian, pixel) window contributions, 3.1 M of them drawn).
@@ -55,7 +55,9 @@ from vid2haircut.render.types import Gaussians2D, PixelSums, StrandRender
 MAX_SIDE = 16384
 """Largest image side :func:`render_strands` accepts (beyond it the tile and pixel counts of a
 batch outgrow the kernels' index types)."""
-COMPOSITINGS = ("bins", "exact")
+COMPOSITINGS = ("auto", "bins", "exact")
+"""The renderer's compositing models; "auto" is "exact" where the numba backend renders and "bins"
+elsewhere (:func:`resolve_compositing`)."""
 """Compositing models of :func:`render_strands`."""
 MAX_BINS = 1024
 """Most depth bins :func:`render_strands` accepts (the per-tile bin tables are bins x pixels)."""
@@ -84,7 +86,7 @@ def render_strands(
     shading: bool = True,
     backend: str = "auto",
     silhouette_opacity: float | None = None,
-    compositing: str = "bins",
+    compositing: str = "auto",
     t_min: float = 1e-4,
 ) -> StrandRender:
     """Render strands as strand-aligned Gaussians to silhouette, direction and depth maps.
@@ -121,9 +123,11 @@ def render_strands(
             direction and visibility stay those at ``opacity``: the same as replacing the
             silhouette by that of a second, silhouette-only render at this opacity. The numba
             backend composites both from one window walk when it is below ``opacity``.
-        compositing: "bins" (default: the depth-binned model, :mod:`vid2haircut.render.raster`) or
-            "exact" (front to back in each Gaussian's depth order, each pixel stopping once its
-            transmittance falls below ``t_min``; numba backend only, :mod:`.numba_exact`).
+        compositing: "exact" (front to back in each Gaussian's depth order, each pixel stopping
+            once its transmittance falls below ``t_min``; numba backend only, :mod:`.numba_exact`),
+            "bins" (the depth-binned model, :mod:`vid2haircut.render.raster`; both backends) or
+            "auto" (default: "exact" where the numba backend renders, else "bins";
+            :func:`resolve_compositing`).
         t_min: the transmittance at which a pixel stops compositing with ``compositing="exact"``.
 
     Returns:
@@ -160,6 +164,7 @@ def render_strands(
     points = torch.as_tensor(points)
     check_points(points)
     use_numba = resolve_backend(backend, points) == "numba"
+    compositing = resolve_compositing(compositing, "numba" if use_numba else "torch")
     if compositing == "exact" and not use_numba:
         raise ValueError("compositing='exact' needs the numba backend (CPU float32 / float64 points, numba installed)")
     exact_t_min = t_min if compositing == "exact" else None
@@ -220,6 +225,22 @@ def render_strands(
                                 compositing=compositing, t_min=t_min)
         return out._replace(silhouette=second.silhouette)
     return out
+
+
+def resolve_compositing(compositing: str, backend: str) -> str:
+    """The compositing model ("bins" or "exact") that ``compositing`` names for a render by
+    ``backend`` (the resolved one, "numba" or "torch": :func:`.numba_backend.resolve_backend`):
+    "auto" is "exact" with the numba kernels (the CPU; within 5x of a scatter-add of its window
+    contributions, README "Performance") and "bins" with the torch kernels (any device), which have
+    only that model. The named models are returned as they are.
+
+    Raises ValueError for an unknown name.
+    """
+    if compositing not in COMPOSITINGS:
+        raise ValueError(f"compositing must be one of {COMPOSITINGS}, got {compositing!r}")
+    if compositing == "auto":
+        return "exact" if backend == "numba" else "bins"
+    return compositing
 
 
 def _whole(name: str, value) -> int:
