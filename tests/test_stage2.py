@@ -112,6 +112,7 @@ def test_files_cli_outputs_and_resume(toy, tmp_path):
     assert first["resumed_from_step"] is None and first["keyframes"] == [0, 1, 2]
     assert 0.0 <= first["carved_fraction"] < 1.0 and first["config"]["carve_tolerance"] == 1.0
     assert first["machine"]["render_compaction"] and first["machine"]["cpu"]
+    assert first["compositing"] == ("exact" if numba_available() else "bins")  # the model "auto" named here
     assert args.func(args) == 0                                             # again: resumes at the end
     again = json.loads((out / "stage2.json").read_text())
     assert again["resumed_from_step"] == FAST["iterations"] - 1

@@ -128,7 +128,8 @@ def run_stage1(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
     codec = codec.to("cpu")
     cut = _write_common(out, res, data, codec, cfg, "stage 1")
     record = {"stage": "stage1", "config": config_to_dict(cfg), "reference": data.frames[0], "carved_fraction": cut,
-              "fit_size": [data.width, data.height], "n_guides": int(res.texel_index.numel()),
+              "fit_size": [data.width, data.height], "compositing": drawn_compositing(cfg.render, data),
+              "n_guides": int(res.texel_index.numel()),
               "prior": str(prior_dir) if prior_dir is not None else None,
               "codec_fingerprint": codec.fingerprint(), "fit_seconds": res.seconds,
               "total_seconds": time.perf_counter() - t0, "machine": machine_info(cfg.device),
@@ -213,7 +214,8 @@ def run_stage2(dataset_root: str | Path, subject: str, keyframes_json: str | Pat
                                        "config": dataclasses.asdict(deform.cfg), "frames": list(data.frames),
                                        "texel_index": res.texel_index.cpu()})
     record = {"stage": "stage2", "config": config_to_dict(cfg), "keyframes": data.frames, "carved_fraction": cut,
-              "fit_size": [data.width, data.height], "n_guides": int(res.texel_index.numel()),
+              "fit_size": [data.width, data.height], "compositing": drawn_compositing(cfg.render, data),
+              "n_guides": int(res.texel_index.numel()),
               "codec_fingerprint": codec.fingerprint(), "signature": sig,
               "resumed_from_step": None if state is None else int(state["step"]),
               "fit_seconds": res.seconds, "total_seconds": time.perf_counter() - t0,
