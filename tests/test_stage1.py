@@ -103,7 +103,7 @@ def test_files_cli_outputs_and_determinism(toy, tmp_path):
     record = json.loads((a / "stage1.json").read_text())
     assert record["config"]["seed"] == 3 and len(record["history"]["total"]) == 5
     assert record["machine"]["device"] == "cpu" and record["machine"]["torch_cpu_capability"]
-    assert record["compositing"] == "bins"  # Stage 1 keeps the binned model
+    assert record["compositing"] == "bins"  # the fits' default model
 
 
 def test_dense_strands_get_uneven_ends_and_fan_out_outside_the_head(toy):

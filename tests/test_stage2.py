@@ -112,7 +112,7 @@ def test_files_cli_outputs_and_resume(toy, tmp_path):
     assert first["resumed_from_step"] is None and first["keyframes"] == [0, 1, 2]
     assert 0.0 <= first["carved_fraction"] < 1.0 and first["config"]["carve_tolerance"] == 1.0
     assert first["machine"]["render_compaction"] and first["machine"]["cpu"]
-    assert first["compositing"] == ("exact" if numba_available() else "bins")  # the model "auto" named here
+    assert first["compositing"] == "bins"  # (the model drawn with; "auto" would name it)
     assert args.func(args) == 0                                             # again: resumes at the end
     again = json.loads((out / "stage2.json").read_text())
     assert again["resumed_from_step"] == FAST["iterations"] - 1
@@ -355,8 +355,8 @@ def test_bad_stage_files_and_outputs(toy, tmp_path, caplog):
 
 
 def test_signature_of_the_compositing_models():
-    """A checkpoint made before ``render.compositing`` existed still resumes with the binned model:
-    neither it, ``t_min`` nor ``gate_bins_every`` enters its signature. The default ("auto") signs
+    """A checkpoint made before ``render.compositing`` existed still resumes with the binned model
+    (the default): neither it, ``t_min`` nor ``gate_bins_every`` enters its signature. "auto" signs
     as the model it names on the fit's device ("exact" on the CPU with numba), and the exact model's
     ``gate_bins_every`` is part of its signature."""
     from types import SimpleNamespace
@@ -371,10 +371,11 @@ def test_signature_of_the_compositing_models():
     def sig(over):
         return _signature(apply_overrides(Stage2Config(), over), data, z, mask)
 
-    bins = sig({"render": {"compositing": "bins"}})
+    bins = sig({})
+    assert sig({"render": {"compositing": "bins"}}) == bins
     assert sig({"render": {"compositing": "bins", "t_min": 1e-3}, "gate_bins_every": 10}) == bins
     exact = sig({"render": {"compositing": "exact"}})
     assert exact != bins and sig({"render": {"compositing": "exact"}, "gate_bins_every": 10}) not in (bins, exact)
     if numba_available():
-        assert sig({}) == exact
-        assert sig({"render": {"t_min": 1e-3}}) != exact
+        assert sig({"render": {"compositing": "auto"}}) == exact
+        assert sig({"render": {"compositing": "auto", "t_min": 1e-3}}) != exact

@@ -245,8 +245,32 @@ def test_gate_from_binned_renders_with_exact_compositing(toy):
     with torch.no_grad():
         exact = render_frames(plain.last_deformed, toy.data, plain.last_frames, cfg.render)
     assert torch.equal(plain.last_render.visibility, exact.visibility)  # 0: the exact render's own
-    # the default: "auto" compositing is the exact model on the CPU, with the gate from the bins every 5 steps
+    # "auto" compositing is the exact model on the CPU, with the gate from the bins every 5 steps by
+    # default; the default model, the bins, has no second render
+    auto = Stage2Model(toy.data, toy.codec, _cfg(render={"n_points": 16, "compositing": "auto"}), z0, m0)
+    assert auto.cfg.gate_bins_every == 5 and auto._gate_from_bins
     default = Stage2Model(toy.data, toy.codec, _cfg(render={"n_points": 16}), z0, m0)
-    assert default.cfg.gate_bins_every == 5 and default._gate_from_bins
-    binned = _cfg(render={"n_points": 16, "compositing": "bins"})
-    assert not Stage2Model(toy.data, toy.codec, binned, z0, m0)._gate_from_bins
+    assert default.cfg.render.compositing == "bins" and not default._gate_from_bins
+
+
+def test_resume_with_the_gate_from_binned_renders_is_the_same(toy):
+    """A checkpoint between two binned renders holds the visibility the gate uses until the next
+    one, so a fit resumed from it ends where the uninterrupted fit does (checkpoints every 3 steps,
+    binned renders every 5)."""
+    pytest.importorskip("numba")
+    z0, m0 = _start(toy)
+    cfg = _cfg(render={"n_points": 16, "compositing": "exact"}, gate_bins_every=5, render_dense=0)
+    states = {}
+
+    def keep(step, model, trainer):
+        if step == 3:
+            states["ck"] = copy.deepcopy(checkpoint_state(step, model, trainer))
+
+    a = fit_stage2(toy.data, toy.codec, cfg, z0, m0, progress=False, on_step=keep)
+    assert len(states["ck"]["bins_visibility"]) == 1  # made at step 0, for all three frames
+    b = fit_stage2(toy.data, toy.codec, cfg, z0, m0, progress=False, resume=states["ck"])
+    assert torch.allclose(a.z, b.z, atol=1e-6)
+    stale = copy.deepcopy(states["ck"])
+    stale["bins_visibility"] = []  # a checkpoint without it re-renders at step 4: another fit
+    c = fit_stage2(toy.data, toy.codec, cfg, z0, m0, progress=False, resume=stale)
+    assert not torch.allclose(a.z, c.z, atol=1e-6)

@@ -72,11 +72,10 @@ class Stage1Config:
     weights: LossWeights = field(default_factory=lambda: LossWeights(depth=0.01))
     """Loss weights (Stage 1 uses silhouette, direction, depth, penetration and bend only; depth 0.01 as
     Im2Haircut, penetration 1e4 as Vid2Haircut: Im2Haircut's 0.3 leaves strands inside the head)."""
-    render: RenderSettings = field(default_factory=lambda: RenderSettings(compositing="bins"))
-    """Guide rendering settings, with the binned compositing model: with the exact one the first
-    quality draw's Stage 1 gave 0.0740 / 0.2566 against 0.0731 / 0.2567 (Chamfer_pts 1e-4 m^2 /
-    Chamfer_angle; worse on four of six styles), and Stage 1's 100 steps take ~5 s either way
-    (``benchmarks/RESULTS.md``, "Exact compositing as Stage 2's default")."""
+    render: RenderSettings = field(default_factory=RenderSettings)
+    """Guide rendering settings (the binned compositing model: with the exact one the first quality
+    draw's Stage 1 gave 0.0740 / 0.2566 against 0.0731 / 0.2567, Chamfer_pts 1e-4 m^2 /
+    Chamfer_angle, worse on four of six styles; Stage 1's 100 steps take ~5 s either way)."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
     length_spread: float = LENGTH_SPREAD
@@ -288,10 +287,10 @@ class Stage2Config:
     visible to the visibility gate (in place of ``render.vis_weight``, which stays the guides' and
     drives the observed-texel test and the anchor)."""
     gate_bins_every: int = 5
-    """With the exact compositing model (``render.compositing`` "exact", or "auto" on the CPU): the
-    visibility that the gate (and the hidden-direction term, and before the dense strands the
-    observed-texel test) takes from Stage 2's render with gradients comes from a forward render of
-    the same strands with the binned model instead, made at every step divisible by this (and when
+    """With the exact compositing model (``render.compositing`` "exact", or "auto" on the CPU; the
+    default is the bins): the visibility that the gate (and the hidden-direction term, and before
+    the dense strands the observed-texel test) takes from Stage 2's render with gradients comes
+    from a forward render of the same strands with the binned model instead, made at every step divisible by this (and when
     the frames or strands change; 0: the exact render's own). The exact model's visibility (alpha T
     at a pixel) gating its own gradients fails on the wavy style of the first draw (Chamfer_pts
     0.0609 and 0.0635 for two seeds against the bins' 0.0465); the binned model's visibility with
