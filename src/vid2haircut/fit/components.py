@@ -149,7 +149,7 @@ class RenderSettings:
     CPU, "bins" on CUDA). The fits keep the bins because they fit better with them, in the same
     time: with "exact" (Stage 2 with ``gate_bins_every`` 5) the quality benchmark's Stage 2 gave
     Chamfer_pts 0.0347 and 0.0353 (first draw, seeds 0 and 1) and 0.0331 (second draw) against the
-    bins' 0.0344, 0.0349 and 0.0323, and Stage 1 0.0740 against 0.0731 (1e-4 m^2;
+    bins' 0.0344, 0.0349 and 0.0323, and Stage 1 0.0738 against 0.0731 (1e-4 m^2;
     ``benchmarks/RESULTS.md``, "Exact compositing in the fits: both draws and a second seed")."""
     t_min: float = 1e-4
     """Transmittance at which a pixel stops compositing with ``compositing: exact``."""

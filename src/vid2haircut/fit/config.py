@@ -74,7 +74,7 @@ class Stage1Config:
     Im2Haircut, penetration 1e4 as Vid2Haircut: Im2Haircut's 0.3 leaves strands inside the head)."""
     render: RenderSettings = field(default_factory=RenderSettings)
     """Guide rendering settings (the binned compositing model: with the exact one the first quality
-    draw's Stage 1 gave 0.0740 / 0.2566 against 0.0731 / 0.2567, Chamfer_pts 1e-4 m^2 /
+    draw's Stage 1 gave 0.0738 / 0.2567 against 0.0731 / 0.2567, Chamfer_pts 1e-4 m^2 /
     Chamfer_angle, worse on four of six styles; Stage 1's 100 steps take ~5 s either way)."""
     n_dense: int = 10000
     """Dense strands decoded for the output."""
