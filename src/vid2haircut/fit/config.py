@@ -287,18 +287,18 @@ class Stage2Config:
     visible to the visibility gate (in place of ``render.vis_weight``, which stays the guides' and
     drives the observed-texel test and the anchor)."""
     gate_bins_every: int = 5
-    """With the exact compositing model (``render.compositing`` "exact", or "auto" on the CPU; the
-    default is the bins): the visibility that the gate (and the hidden-direction term, and before
-    the dense strands the observed-texel test) takes from Stage 2's render with gradients comes
-    from a forward render of the same strands with the binned model instead, made at every step divisible by this (and when
-    the frames or strands change; 0: the exact render's own). The exact model's visibility (alpha T
-    at a pixel) gating its own gradients fails on the wavy style of the first draw (Chamfer_pts
-    0.0609 and 0.0635 for two seeds against the bins' 0.0465); the binned model's visibility with
-    the exact images does not (0.0480 and 0.0476 every step, 0.0483 every 5 steps, 0.0489 every 20,
-    through a diagnostic script). At 5 the first draw's Stage 2 gives 0.0347 / 0.2240 and at 10
-    0.0348 / 0.2242, against the bins' 0.0344 / 0.2237 the same day (``benchmarks/RESULTS.md``,
-    "Exact compositing on the wavy style: the visibility gate"). A checkpoint holds the binned
-    visibility in use, so a resumed fit is the same."""
+    """With the exact compositing model (``render.compositing`` "exact", or "auto" on the CPU; the default is
+    the bins): the visibility that the gate (and the hidden-direction term, and before the dense strands
+    the observed-texel test) takes from Stage 2's render with gradients comes from a forward render of
+    the same strands with the binned model instead, made at every step divisible by this (and when the
+    frames or strands change; 0: the exact render's own). The exact model's visibility (alpha T at a
+    pixel) gating its own gradients fails on the wavy style of the first draw (Chamfer_pts 0.0609 and
+    0.0635 for two seeds against the bins' 0.0465); the binned model's visibility with the exact images
+    does not (0.0480 and 0.0476 every step, 0.0483 every 5 steps, 0.0489 every 20, through a diagnostic
+    script). At 5 the first draw's Stage 2 gives 0.0347 / 0.2240 and at 10 0.0348 / 0.2242, against the
+    bins' 0.0344 / 0.2237 the same day (``benchmarks/RESULTS.md``, "Exact compositing on the wavy style:
+    the visibility gate"). A checkpoint holds the binned visibility in use, so a resumed fit is the
+    same."""
     hidden_direction_from: str = "render"
     """What the hidden-direction term (``weights.hidden_direction``) aligns a segment the gate shuts
     with: "render", the rendered direction of the fitted hair drawn over it in that keyframe

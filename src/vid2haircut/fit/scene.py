@@ -24,7 +24,8 @@ from vid2haircut.render import StrandRender, render_strands
 from vid2haircut.render.api import resolve_compositing
 from vid2haircut.render.numba_backend import resolve_backend
 
-__all__ = ["GuideLayout", "guide_layout", "decode_layout", "render_frames", "image_losses", "outside_term", "hidden_direction_term",
+__all__ = ["GuideLayout", "guide_layout", "decode_layout", "drawn_compositing", "render_frames", "image_losses",
+           "outside_term", "hidden_direction_term",
            "HIDDEN_DIRECTION_SOURCES", "ZMap",
            "length_step_gain", "z_optimizer"]
 
