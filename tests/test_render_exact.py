@@ -168,6 +168,21 @@ def test_depth_order():
     z = np.float32([np.nan, -1.0, np.nan, -2.0, 0.0])
     assert list(depth_order(z)) == [1, 3, 4, 0, 2] and list(depth_order(z[:4])) == [1, 3, 0, 2]
     assert list(depth_order(z[[0, 2]])) == [0, 1]
+    # one chunk per thread (each of at least DEPTH_CHUNK_MIN): the same stable order, every chunk
+    # count, with ties across chunks, NaN and negative depths, a strided column and float64
+    from vid2haircut.render.numba_records import DEPTH_CHUNK_MIN
+
+    for n, span in ((2 * DEPTH_CHUNK_MIN + 17, 0.3), (5 * DEPTH_CHUNK_MIN, 1e-5), (3 * DEPTH_CHUNK_MIN, 1e3)):
+        z = (0.5 + rng.random(n) * span).astype(np.float32)
+        z[rng.integers(0, n, 500)] = np.float32(np.nan)
+        z[rng.integers(0, n, 500)] = np.float32(-0.3)
+        z[rng.integers(0, n, 2000)] = z[0]
+        want = np.argsort(np.where(np.isnan(z), np.inf, np.maximum(z, 0.0)), kind="stable")
+        for threads in (1, 2, 3, 8):
+            assert np.array_equal(depth_order(z, threads), want), (n, threads)
+        table = np.zeros((n, 8), np.float64)
+        table[:, 5] = z
+        assert np.array_equal(depth_order(table[:, 5], 2), want)
 
 
 def test_bad_options():

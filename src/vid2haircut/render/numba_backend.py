@@ -176,12 +176,14 @@ class _Plan:
                            img if self.second else none)
 
 
-def _numba_threads() -> None:
+def _numba_threads() -> int:
     """numba's thread count := ``min(torch.get_num_threads(), NUMBA_NUM_THREADS)`` (the kernels run
-    as many threads as torch would)."""
+    as many threads as torch would); returns it."""
     import numba
 
-    numba.set_num_threads(max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS)))
+    n = max(1, min(torch.get_num_threads(), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(n)
+    return n
 
 
 class _FusedComposite(torch.autograd.Function):
@@ -357,8 +359,9 @@ def composite_fused(
         # one cache-line record per Gaussian: its row, depth and window (numba_records.gaussian_records)
         gpar_sorted, rec_wint, rec_wflt = numba_records.gaussian_records(tab.shape[0], tab.dtype)
         with _LOCK:
-            _numba_threads()
-            order = numba_records.depth_order(tab[:, 5])  # (the strided column: a copy first cost as much as it saved)
+            threads = _numba_threads()
+            # (the strided column: a copy first cost as much as it saved)
+            order = numba_records.depth_order(tab[:, 5], threads)
             if exact_windows:  # the windows computed into the records
                 frame_np = numba_records.gather_windows(order, tab, covs.detach().contiguous().numpy(),
                                                         valid.contiguous().numpy(), frame_np, height, width,
