@@ -192,6 +192,9 @@ def test_bad_options():
         render_strands(pts, K, E, 9, 9, compositing="sorted")
     with pytest.raises(ValueError, match="t_min must be in"):
         exact(pts, K, E, 9, 9, t_min=0.0)
+    with pytest.raises(ValueError, match="t_min must be in"):  # the default, "auto", is the exact model here
+        render_strands(pts, K, E, 9, 9, backend="numba", t_min=1.0)
+    render_strands(pts, K, E, 9, 9, backend="torch", t_min=1.0)  # (the binned model has no t_min)
     with pytest.raises(ValueError, match="needs the numba backend"):
         render_strands(pts, K, E, 9, 9, backend="torch", compositing="exact")
     from vid2haircut.fit.components import COMPOSITINGS as fit_choices

@@ -157,16 +157,14 @@ def render_strands(
         raise ValueError(f"vis_weight must be > 0, got {vis_weight}")
     if silhouette_opacity is not None and not alpha_min < silhouette_opacity <= 1.0:
         raise ValueError(f"silhouette_opacity must be in (alpha_min, 1] = ({alpha_min}, 1], got {silhouette_opacity}")
-    if compositing not in COMPOSITINGS:
-        raise ValueError(f"compositing must be one of {COMPOSITINGS}, got {compositing!r}")
-    if compositing == "exact" and not 0.0 < t_min < 1.0:
-        raise ValueError(f"t_min must be in (0, 1), got {t_min}")
     points = torch.as_tensor(points)
     check_points(points)
     use_numba = resolve_backend(backend, points) == "numba"
     compositing = resolve_compositing(compositing, "numba" if use_numba else "torch")
     if compositing == "exact" and not use_numba:
         raise ValueError("compositing='exact' needs the numba backend (CPU float32 / float64 points, numba installed)")
+    if compositing == "exact" and not 0.0 < t_min < 1.0:  # (also when "auto" names the exact model)
+        raise ValueError(f"t_min must be in (0, 1), got {t_min}")
     exact_t_min = t_min if compositing == "exact" else None
     B, N, P = points.shape[0], points.shape[1], points.shape[2]
     if points.device.type == "cpu":
